@@ -1,0 +1,29 @@
+"""Exceptions and warnings raised by hortishape.
+
+Every error a user can cause with bad input derives from
+:class:`HortishapeError`, so the command line can turn it into one clear line
+and a non-zero exit status. Messages name the file (where there is one) and
+the problem.
+"""
+
+from __future__ import annotations
+
+
+class HortishapeError(Exception):
+    """Base class of all errors hortishape raises on bad input."""
+
+
+class MeshError(HortishapeError, ValueError):
+    """A mesh file or mesh array is unusable (missing, empty, broken, wrong units)."""
+
+
+class VolumeError(HortishapeError, ValueError):
+    """A volume file or volume array is unusable."""
+
+
+class NotFittedError(HortishapeError, AttributeError):
+    """A model was used before ``fit`` (or ``load``)."""
+
+
+class ConvergenceWarning(UserWarning):
+    """An iterative step (registration) stopped before meeting its convergence test."""
