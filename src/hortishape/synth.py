@@ -1,0 +1,1193 @@
+"""Synthetic fruit and vegetable populations with known correspondence.
+
+Real scans come without ground truth, so hortishape makes its own: every
+instance is a smooth, invertible deformation of one *canonical* shape per
+product, surfaced the way a CT scan would be (marching cubes on a voxel grid,
+50k-150k vertices) and placed in a random scanner pose.
+
+How an instance is made
+-----------------------
+1. A canonical shape per product is an implicit function ``F(c) < 0`` inside,
+   built from smooth signed-distance primitives in *canonical coordinates*:
+   millimetres on an average-sized, upright fruit, stalk along ``+z``. A few
+   instance features live here (stalk length and bend, cavity depth, number and
+   depth of pepper lobes, ribs).
+2. A chain of closed-form invertible maps takes canonical coordinates to the
+   scanner: taper (top wider or narrower), lean (lopsidedness), per-axis scale
+   (the instance's dimensions, spread as in the paper's Table 1), bend (an arc,
+   for zucchini, banana and pear necks) and the scanner pose.
+3. The scanner-space volume ``F(psi(x))`` is sampled on a voxel grid aligned
+   with the scanner axes and surfaced by marching cubes, so the triangulation
+   looks like a CT surface and not like the canonical shape's.
+
+Because ``psi`` (scanner to canonical) is exact, every vertex knows its
+canonical coordinates: the same canonical point is the same anatomical place
+on every instance. :func:`true_correspondence` carries canonical points to any
+instance, which is how registration accuracy is measured.
+
+Products: ``apple``, ``pepper`` (bell pepper), ``zucchini`` (dimension means
+and spreads from the paper's Table 1), ``pear`` and ``banana`` (curved and not
+star-shaped).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Iterable
+
+import numpy as np
+
+from ._rng import RandomState, as_generator, spawn_seeds
+from .errors import HortishapeError
+from .mesh import Mesh
+
+__all__ = [
+    "PRODUCTS",
+    "ProductSpec",
+    "Deformation",
+    "SyntheticInstance",
+    "make_instance",
+    "make_population",
+    "true_correspondence",
+    "closest_points",
+    "write_instance",
+    "read_truth",
+    "write_population",
+]
+
+
+# --------------------------------------------------------------------------
+# Smooth signed-distance primitives (vectorised over points)
+# --------------------------------------------------------------------------
+
+
+def _smin(a: np.ndarray, b: np.ndarray, k: float) -> np.ndarray:
+    """Polynomial smooth minimum: a union with a fillet of size ``k`` mm."""
+    h = np.clip(0.5 + 0.5 * (b - a) / k, 0.0, 1.0)
+    return b + (a - b) * h - k * h * (1.0 - h)
+
+
+def _smax(a: np.ndarray, b: np.ndarray, k: float) -> np.ndarray:
+    return -_smin(-a, -b, k)
+
+
+def _round_cone(p: np.ndarray, a, b, ra: float, rb: float) -> np.ndarray:
+    """Exact distance to the convex hull of two spheres (centres a, b; radii ra, rb).
+
+    Works in any dimension: ``p`` is ``(n, d)``.
+    """
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    ba = b - a
+    l2 = float(ba @ ba)
+    rr = ra - rb
+    a2 = l2 - rr * rr
+    il2 = 1.0 / l2
+    pa = p - a
+    y = pa @ ba
+    z = y - l2
+    q = pa * l2 - y[:, None] * ba
+    x2 = np.einsum("ij,ij->i", q, q)
+    y2 = y * y * l2
+    z2 = z * z * l2
+    k = math.copysign(1.0, rr) * rr * rr * x2
+    d_mid = (np.sqrt(np.maximum(x2 * a2 * il2, 0.0)) + y * rr) * il2 - ra
+    d_b = np.sqrt(x2 + z2) * il2 - rb
+    d_a = np.sqrt(x2 + y2) * il2 - ra
+    return np.where(np.sign(z) * a2 * z2 > k, d_b, np.where(np.sign(y) * a2 * y2 < k, d_a, d_mid))
+
+
+def _chain(p: np.ndarray, centres, radii) -> np.ndarray:
+    """Distance to a chain of round cones through ``centres`` with ``radii``."""
+    d = None
+    for i in range(len(centres) - 1):
+        di = _round_cone(p, centres[i], centres[i + 1], radii[i], radii[i + 1])
+        d = di if d is None else np.minimum(d, di)
+    return d
+
+
+def _sphere(p: np.ndarray, centre, r: float) -> np.ndarray:
+    return np.linalg.norm(p - np.asarray(centre, dtype=float), axis=1) - r
+
+
+def _ellipsoid(p: np.ndarray, centre, radii) -> np.ndarray:
+    """Approximate (bound-corrected) distance to an axis-aligned ellipsoid."""
+    q = (p - np.asarray(centre, dtype=float)) / np.asarray(radii, dtype=float)
+    k0 = np.linalg.norm(q, axis=1)
+    k1 = np.linalg.norm(q / np.asarray(radii, dtype=float), axis=1)
+    return k0 * (k0 - 1.0) / np.maximum(k1, 1e-12)
+
+
+def _revolution(p: np.ndarray, modulation: np.ndarray) -> np.ndarray:
+    """(rho, z) coordinates with the radius divided by ``1 + modulation``.
+
+    Shapes of revolution are built as 2D profiles; the modulation adds lobes
+    and ribs as a function of azimuth and height.
+    """
+    rho = np.hypot(p[:, 0], p[:, 1]) / (1.0 + modulation)
+    return np.column_stack([rho, p[:, 2]])
+
+
+def _azimuth(p: np.ndarray) -> np.ndarray:
+    return np.arctan2(p[:, 1], p[:, 0])
+
+
+# --------------------------------------------------------------------------
+# Canonical shapes
+# --------------------------------------------------------------------------
+
+# A canonical shape: parts (name -> implicit function) and a combiner giving
+# the whole surface; landmarks are found on the surface along given rays.
+
+
+@dataclass(frozen=True)
+class _Canonical:
+    parts: dict[str, Callable[[np.ndarray], np.ndarray]]
+    combine: Callable[[dict[str, np.ndarray]], np.ndarray]
+    # landmark name -> (ray origin inside the shape, ray direction)
+    landmark_rays: dict[str, tuple[np.ndarray, np.ndarray]]
+    # parts that belong to the body when measuring dimensions
+    body_parts: tuple[str, ...]
+
+    def __call__(self, c: np.ndarray) -> np.ndarray:
+        return self.combine({name: f(c) for name, f in self.parts.items()})
+
+    def part_labels(self, c: np.ndarray) -> np.ndarray:
+        """Index (into ``parts``) of the part nearest to each point."""
+        values = np.stack([f(c) for f in self.parts.values()])
+        return np.argmin(values, axis=0).astype(np.uint8)
+
+
+def _stalk_path(rng: np.random.Generator, base, length: float, bend: float, n: int = 4):
+    """Points along a gently bent stalk from ``base`` upwards."""
+    az = rng.uniform(-math.pi, math.pi)
+    t = np.linspace(0.0, 1.0, n)
+    off = bend * t**2
+    return np.column_stack(
+        [base[0] + off * math.cos(az), base[1] + off * math.sin(az), base[2] + length * t]
+    )
+
+
+def _cavity_floor(shape_parts: Callable[[np.ndarray], np.ndarray], z_hi: float, z_lo: float) -> float:
+    """Height where the axis first enters the shape going down from ``z_hi``."""
+    z = np.linspace(z_hi, z_lo, 4001)
+    p = np.column_stack([np.zeros_like(z), np.zeros_like(z), z])
+    inside = shape_parts(p) < 0
+    if not inside.any():  # pragma: no cover - the shapes below always hit
+        raise RuntimeError("canonical shape does not cross its axis")
+    return float(z[np.argmax(inside)])
+
+
+def _apple(rng: np.random.Generator) -> _Canonical:
+    ribs = rng.uniform(0.004, 0.02)
+    rib_phase = rng.uniform(0, 2 * math.pi / 5)
+    top_r = rng.uniform(19.0, 24.0)
+    top_depth = rng.uniform(10.0, 14.0)
+    bot_r = rng.uniform(8.0, 11.0)
+    bot_depth = rng.uniform(4.0, 6.5)
+
+    def body(c):
+        mod = ribs * np.cos(5 * _azimuth(c) + rib_phase) * np.clip((10.0 - c[:, 2]) / 50.0, 0.0, 1.0)
+        d = _round_cone(_revolution(c, mod), (0.0, -10.0), (0.0, 4.0), 31.0, 39.0)
+        d = _smax(d, -_sphere(c, (0, 0, 43.0 + top_r - top_depth), top_r), 9.0)
+        return _smax(d, -_sphere(c, (0, 0, -41.0 - bot_r + bot_depth), bot_r), 4.0)
+
+    z_top = _cavity_floor(body, 60.0, 0.0)
+    z_bot = -_cavity_floor(lambda c: body(c * np.array([1, 1, -1])), 60.0, 0.0)
+    sepals = np.array(
+        [[3.2 * math.cos(a), 3.2 * math.sin(a), z_bot + 1.0] for a in np.linspace(0, 2 * math.pi, 6)[:5] + rng.uniform(0, 1)]
+    )
+    length = rng.uniform(14.0, 22.0)
+    path = _stalk_path(rng, (0.0, 0.0, z_top - 2.5), length + 2.5, rng.uniform(1.0, 4.0))
+    radii = np.linspace(1.7, 1.35, len(path))
+
+    def stalk(c):
+        d = _chain(c, path, radii)
+        return np.minimum(d, _sphere(c, path[-1], 1.75))
+
+    def calyx(c):
+        return np.min(np.stack([_sphere(c, s, 1.6) for s in sepals]), axis=0)
+
+    def combine(v):
+        return _smin(_smin(v["body"], v["stalk"], 1.5), v["calyx"], 1.0)
+
+    tip_dir = path[-1] - path[-2]
+    return _Canonical(
+        parts={"body": body, "stalk": stalk, "calyx": calyx},
+        combine=combine,
+        landmark_rays={
+            "stalk_tip": (path[-1], tip_dir / np.linalg.norm(tip_dir)),
+            "bottom": (np.array([0.0, 0.0, z_bot + 8.0]), np.array([0.0, 0.0, -1.0])),
+        },
+        body_parts=("body", "calyx"),
+    )
+
+
+def _pepper(rng: np.random.Generator) -> _Canonical:
+    lobes = int(rng.choice([3, 4]))
+    lobe_depth = rng.uniform(0.05, 0.10)
+    blockiness = rng.uniform(2.6, 3.4)
+    r0, hz = 34.0, 40.0
+    top_r, top_depth = rng.uniform(11.0, 15.0), rng.uniform(8.0, 12.0)
+    bot_r, bot_depth = rng.uniform(12.0, 16.0), rng.uniform(4.0, 8.0)
+
+    def body(c):
+        z = c[:, 2]
+        # lobe valleys run top to bottom and deepen towards the blossom end
+        weight = 0.6 + 0.4 * np.clip(-z / hz, 0.0, 1.0)
+        mod = lobe_depth * weight * np.cos(lobes * _azimuth(c))
+        rho = np.hypot(c[:, 0], c[:, 1]) / (1.0 + mod)
+        n = blockiness
+        d = r0 * ((rho / r0) ** n + (np.abs(z) / hz) ** n) ** (1.0 / n) - r0
+        d = _smax(d, -_sphere(c, (0, 0, hz + top_r - top_depth), top_r), 6.0)
+        return _smax(d, -_sphere(c, (0, 0, -hz - bot_r + bot_depth), bot_r), 6.0)
+
+    z_top = _cavity_floor(body, 60.0, 0.0)
+    length = rng.uniform(14.0, 26.0)
+    path = _stalk_path(rng, (0.0, 0.0, z_top - 3.0), length + 3.0, rng.uniform(2.0, 8.0))
+    r_stalk = rng.uniform(3.3, 4.5)
+    radii = np.linspace(r_stalk * 1.15, r_stalk, len(path))
+
+    def stalk(c):
+        return _chain(c, path, radii)
+
+    def calyx(c):
+        return _ellipsoid(c, (0, 0, z_top + 0.5), (12.0, 12.0, 3.0))
+
+    def combine(v):
+        return _smin(_smin(v["body"], v["calyx"], 2.0), v["stalk"], 2.0)
+
+    z_bot = -_cavity_floor(lambda c: body(c * np.array([1, 1, -1])), 60.0, 0.0)
+    tip_dir = path[-1] - path[-2]
+    return _Canonical(
+        parts={"body": body, "calyx": calyx, "stalk": stalk},
+        combine=combine,
+        landmark_rays={
+            "stalk_tip": (path[-1] - tip_dir * 0.1, tip_dir / np.linalg.norm(tip_dir)),
+            "bottom": (np.array([0.0, 0.0, z_bot + 8.0]), np.array([0.0, 0.0, -1.0])),
+        },
+        body_parts=("body", "calyx"),
+    )
+
+
+def _zucchini(rng: np.random.Generator) -> _Canonical:
+    ribs = rng.uniform(0.005, 0.02)
+    n_ribs = int(rng.choice([5, 6, 8]))
+    club = rng.uniform(-3.0, 4.0)  # blossom end thicker (club-shaped) or not
+    neck = rng.uniform(24.0, 29.0)
+    # the blossom end stays at z = -142 whatever the club: only the width changes
+    centres = np.array([[0.0, -107.0 + club], [0.0, 20.0], [0.0, 112.0]])
+    radii = np.array([35.0 + club, 33.0, neck])
+
+    def body(c):
+        mod = ribs * np.cos(n_ribs * _azimuth(c))
+        d = _chain(_revolution(c, mod), centres, radii)
+        return np.minimum(d, _sphere(c, (0.0, 0.0, -142.0), 3.5))
+
+    length = rng.uniform(16.0, 30.0)
+    r_stalk = rng.uniform(6.5, 8.5)
+    path = _stalk_path(rng, (0.0, 0.0, 126.0), length + 13.0, rng.uniform(1.0, 6.0), n=3)
+
+    def stalk(c):
+        return _chain(c, path, [r_stalk * 1.5, r_stalk * 1.1, r_stalk])
+
+    def combine(v):
+        return _smin(v["body"], v["stalk"], 5.0)
+
+    tip_dir = path[-1] - path[-2]
+    return _Canonical(
+        parts={"body": body, "stalk": stalk},
+        combine=combine,
+        landmark_rays={
+            "stalk_tip": (path[-1] - tip_dir * 0.2, tip_dir / np.linalg.norm(tip_dir)),
+            "bottom": (np.array([0.0, 0.0, -120.0]), np.array([0.0, 0.0, -1.0])),
+        },
+        body_parts=("body",),
+    )
+
+
+def _pear(rng: np.random.Generator) -> _Canonical:
+    neck_shift = rng.uniform(2.0, 7.0)
+    neck_r = rng.uniform(10.0, 14.0)
+    centres = np.array([[0.0, 0.0, -22.0], [neck_shift * 0.3, 0.0, 10.0], [neck_shift, 0.0, 34.0]])
+    radii = np.array([32.0, 22.0, neck_r])
+    bot_depth = rng.uniform(2.0, 4.0)
+
+    def body(c):
+        d = _chain(c, centres, radii)
+        return _smax(d, -_sphere(c, (0, 0, -54.0 - 7.0 + bot_depth), 7.0), 3.0)
+
+    top = centres[-1] + np.array([0.0, 0.0, neck_r])
+    length = rng.uniform(22.0, 34.0)
+    path = _stalk_path(rng, top - np.array([0.0, 0.0, 3.0]), length + 3.0, rng.uniform(3.0, 9.0))
+    radii_s = np.linspace(1.9, 1.4, len(path))
+
+    def stalk(c):
+        return np.minimum(_chain(c, path, radii_s), _sphere(c, path[-1], 1.6))
+
+    z_bot = -_cavity_floor(lambda c: body(c * np.array([1, 1, -1])), 70.0, 0.0)
+    sepals = np.array(
+        [[2.2 * math.cos(a), 2.2 * math.sin(a), z_bot + 0.6] for a in np.linspace(0, 2 * math.pi, 6)[:5]]
+    )
+
+    def calyx(c):
+        return np.min(np.stack([_sphere(c, s, 1.3) for s in sepals]), axis=0)
+
+    def combine(v):
+        return _smin(_smin(v["body"], v["stalk"], 2.5), v["calyx"], 0.8)
+
+    tip_dir = path[-1] - path[-2]
+    return _Canonical(
+        parts={"body": body, "stalk": stalk, "calyx": calyx},
+        combine=combine,
+        landmark_rays={
+            "stalk_tip": (path[-1], tip_dir / np.linalg.norm(tip_dir)),
+            "bottom": (np.array([0.0, 0.0, z_bot + 8.0]), np.array([0.0, 0.0, -1.0])),
+        },
+        body_parts=("body", "calyx"),
+    )
+
+
+def _banana(rng: np.random.Generator) -> _Canonical:
+    edges = rng.uniform(0.03, 0.07)  # the angular ridges of the peel
+    n_edges = int(rng.choice([4, 5]))
+    centres = np.array([[0.0, -96.0], [0.0, -72.0], [0.0, 25.0], [0.0, 72.0], [0.0, 92.0]])
+    radii = np.array([5.0, 16.0, 18.5, 13.0, 6.5])
+    length = rng.uniform(18.0, 30.0)
+    r_stalk = rng.uniform(4.5, 6.0)
+
+    def body(c):
+        mod = edges * np.cos(n_edges * _azimuth(c))
+        return _chain(_revolution(c, mod), centres, radii)
+
+    path = np.array([[0.0, 0.0, 86.0], [0.0, 0.0, 92.0 + length * 0.5], [0.0, 0.0, 92.0 + length]])
+
+    def stalk(c):
+        return _chain(c, path, [r_stalk * 1.3, r_stalk, r_stalk * 1.15])
+
+    def combine(v):
+        return _smin(v["body"], v["stalk"], 4.0)
+
+    return _Canonical(
+        parts={"body": body, "stalk": stalk},
+        combine=combine,
+        landmark_rays={
+            "stalk_tip": (path[-1] - np.array([0.0, 0.0, 3.0]), np.array([0.0, 0.0, 1.0])),
+            "bottom": (np.array([0.0, 0.0, -85.0]), np.array([0.0, 0.0, -1.0])),
+        },
+        body_parts=("body",),
+    )
+
+
+# --------------------------------------------------------------------------
+# Products: dimensions and deformation spreads
+# --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ProductSpec:
+    """What a synthetic product looks like and how its instances vary.
+
+    ``dimensions_mm`` and ``dimensions_sd_mm`` are the mean and standard
+    deviation of (width, depth, height) of the body (stalk excluded); for the
+    apple, pepper and zucchini they are the paper's Table 1. ``correlation``
+    couples the three dimensions (size is the main mode of a real population).
+    ``bend_mm`` is the mean and spread of the sagitta of the bend over the
+    body length (0 for straight products); with ``width_from_bend`` the bend
+    is instead solved so the bent body has the sampled width.
+    """
+
+    name: str
+    description: str
+    dimensions_mm: tuple[float, float, float]
+    dimensions_sd_mm: tuple[float, float, float]
+    correlation: float
+    taper_sd: float
+    lean_sd: float
+    bend_mm: tuple[float, float]
+    width_from_bend: bool
+    canonical: Callable[[np.random.Generator], _Canonical] = field(repr=False)
+
+
+PRODUCTS: dict[str, ProductSpec] = {
+    "apple": ProductSpec(
+        "apple", "Jonagold-like apple: stalk in its cavity, calyx at the bottom",
+        (82.28, 81.81, 84.50), (3.66, 4.18, 4.74), 0.6, 0.06, 0.03, (0.0, 0.0), False, _apple,
+    ),
+    "pepper": ProductSpec(
+        "pepper", "bell pepper: blocky, 3 or 4 lobes, thick bent stalk on a calyx",
+        (69.30, 68.07, 84.23), (11.41, 11.81, 9.72), 0.7, 0.08, 0.03, (0.0, 0.0), False, _pepper,
+    ),
+    "zucchini": ProductSpec(
+        # Table 1's width (83 +/- 13 mm) exceeds the depth (70 +/- 2 mm): the
+        # curvature of the fruit adds to the width, so the bend carries it.
+        "zucchini", "zucchini: long, slightly curved, club-shaped, with a stalk",
+        (83.36, 70.17, 284.04), (13.30, 1.97, 38.71), 0.3, 0.05, 0.0, (0.0, 0.0), True, _zucchini,
+    ),
+    "pear": ProductSpec(
+        "pear", "pear: round bottom, bent neck, long thin stalk (not star-shaped)",
+        (64.0, 63.0, 100.0), (4.5, 4.5, 8.0), 0.6, 0.05, 0.04, (4.0, 2.5), False, _pear,
+    ),
+    "banana": ProductSpec(
+        "banana", "banana: strongly curved, angular section, stalk (not star-shaped)",
+        (72.0, 36.0, 180.0), (8.0, 3.0, 12.0), 0.5, 0.03, 0.0, (0.0, 0.0), True, _banana,
+    ),
+}
+
+
+# --------------------------------------------------------------------------
+# The deformation chain: canonical <-> body <-> scanner
+# --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Deformation:
+    """Closed-form invertible map from canonical to scanner coordinates.
+
+    ``forward`` applies, in order: taper ``(x, y) *= 1 + taper * z / half_height``,
+    lean ``x += lean * z``, scale ``*= scale``, bend (an arc of curvature
+    ``curvature`` 1/mm in the x-z plane) and the scanner pose ``pose``
+    (4x4, body to scanner). ``inverse`` undoes them exactly.
+    """
+
+    taper: float
+    half_height: float
+    lean: float
+    scale: np.ndarray
+    curvature: float
+    pose: np.ndarray
+
+    def to_body(self, c: np.ndarray) -> np.ndarray:
+        c = np.asarray(c, dtype=float)
+        x, y, z = c[:, 0], c[:, 1], c[:, 2]
+        t = 1.0 + self.taper * z / self.half_height
+        x = x * t + self.lean * z
+        y = y * t
+        p = np.column_stack([x, y, z]) * self.scale
+        k = self.curvature
+        if abs(k) > 1e-12:
+            r = 1.0 / k
+            theta = p[:, 2] * k
+            px = r - (r - p[:, 0]) * np.cos(theta)
+            pz = (r - p[:, 0]) * np.sin(theta)
+            p = np.column_stack([px, p[:, 1], pz])
+        return p
+
+    def from_body(self, p: np.ndarray) -> np.ndarray:
+        p = np.asarray(p, dtype=float)
+        k = self.curvature
+        if abs(k) > 1e-12:
+            r = 1.0 / k
+            u = r - p[:, 0]
+            s = math.copysign(1.0, r)
+            rho = s * np.hypot(u, p[:, 2])
+            theta = np.arctan2(p[:, 2] / rho, u / rho)
+            p = np.column_stack([r - rho, p[:, 1], r * theta])
+        c = p / self.scale
+        z = c[:, 2]
+        x = c[:, 0] - self.lean * z
+        t = 1.0 + self.taper * z / self.half_height
+        return np.column_stack([x / t, c[:, 1] / t, z])
+
+    def forward(self, c: np.ndarray) -> np.ndarray:
+        """Canonical ``(n, 3)`` -> scanner ``(n, 3)`` millimetres."""
+        b = self.to_body(c)
+        return b @ self.pose[:3, :3].T + self.pose[:3, 3]
+
+    def inverse(self, x: np.ndarray) -> np.ndarray:
+        """Scanner ``(n, 3)`` millimetres -> canonical ``(n, 3)``."""
+        b = (np.asarray(x, dtype=float) - self.pose[:3, 3]) @ self.pose[:3, :3]
+        return self.from_body(b)
+
+
+def _random_pose(rng: np.random.Generator, pose: str) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    if pose == "upright":
+        # standing on the scanner bed: any turn about the vertical, a small tilt
+        tilt = Rotation.from_rotvec(
+            np.array([*rng.normal(size=2), 0.0]) / math.sqrt(2) * np.deg2rad(rng.uniform(0, 8))
+        )
+        rot = tilt * Rotation.from_euler("z", rng.uniform(-math.pi, math.pi))
+    elif pose == "random":
+        rot = Rotation.random(random_state=rng)
+    elif pose == "canonical":
+        rot = Rotation.identity()
+    else:
+        raise HortishapeError(f"unknown pose {pose!r}: use 'upright', 'random' or 'canonical'")
+    m = np.eye(4)
+    m[:3, :3] = rot.as_matrix()
+    if pose != "canonical":
+        m[:3, 3] = rng.uniform(-25.0, 25.0, size=3)
+    return m
+
+
+# --------------------------------------------------------------------------
+# Instances
+# --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class SyntheticInstance:
+    """One synthetic scan with its ground truth.
+
+    Attributes
+    ----------
+    name : str
+        ``"<product>_<index>"``, e.g. ``"apple_007"``.
+    product : str
+    mesh : Mesh
+        The scan surface in scanner coordinates (mm).
+    canonical : (n, 3) float64 ndarray
+        Canonical coordinates (mm, average upright fruit) of every vertex.
+    parts : (n,) uint8 ndarray
+        Index into ``part_names`` of every vertex (body, stalk, calyx).
+    part_names : tuple of str
+    landmarks : dict of str to (3,) ndarray
+        ``"stalk_tip"`` and ``"bottom"`` in scanner coordinates (mm).
+    landmarks_canonical : dict of str to (3,) ndarray
+    pose : (4, 4) float64 ndarray
+        Rigid transform from the body frame (stalk along +z) to the scanner.
+    dimensions : (3,) float64 ndarray
+        Width, depth and height of the body (stalk excluded) in its frame, mm.
+    deformation : Deformation
+        The exact canonical -> scanner map.
+    voxel_size : float
+        Edge of the voxel grid the surface was extracted from, mm.
+    volume : Volume or None
+        A CT-like intensity volume (``make_instance(..., volume=True)``).
+    """
+
+    name: str
+    product: str
+    mesh: Mesh
+    canonical: np.ndarray
+    parts: np.ndarray
+    part_names: tuple[str, ...]
+    landmarks: dict
+    landmarks_canonical: dict
+    pose: np.ndarray
+    dimensions: np.ndarray
+    deformation: Deformation
+    voxel_size: float
+    volume: object = None
+
+
+def _surface_point_on_ray(f, origin: np.ndarray, direction: np.ndarray, length: float = 80.0) -> np.ndarray:
+    """First point where ``f`` turns positive along a ray from an inside point."""
+    t = np.linspace(0.0, length, 8001)
+    p = origin[None, :] + t[:, None] * direction[None, :]
+    v = f(p)
+    if v[0] >= 0:  # pragma: no cover - the rays above start inside
+        raise RuntimeError("landmark ray does not start inside the shape")
+    i = int(np.argmax(v >= 0))
+    lo, hi = t[i - 1], t[i]
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        if f((origin + mid * direction)[None, :])[0] < 0:
+            lo = mid
+        else:
+            hi = mid
+    return origin + 0.5 * (lo + hi) * direction
+
+
+def _coarse_surface(f, lo, hi, step: float):
+    from skimage.measure import marching_cubes
+
+    axes = [np.arange(lo[i], hi[i] + step, step) for i in range(3)]
+    g = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    vol = f(g).reshape(tuple(len(a) for a in axes))
+    verts, faces, _, _ = marching_cubes(vol, 0.0, spacing=(step, step, step))
+    return verts + np.asarray(lo), faces
+
+
+def _canonical_surface(canon: _Canonical) -> tuple[np.ndarray, np.ndarray]:
+    """A coarse (2 mm) mesh of the canonical shape, for sizes and bounds."""
+    verts, _ = _coarse_surface(canon, (-160.0,) * 3, (160.0,) * 3, 6.0)
+    return _coarse_surface(canon, verts.min(axis=0) - 8.0, verts.max(axis=0) + 8.0, 2.0)
+
+
+def _fit_size(body_points, taper, half_height, lean, target, sagitta, *, width_from_bend):
+    """Per-axis scale and bend curvature that give the body the target dimensions.
+
+    For products whose width comes from their curvature (zucchini, banana) the
+    cross-section keeps its canonical proportions and the bend is solved so the
+    bent body is as wide as the target; otherwise ``sagitta`` (mm over the body
+    length) sets the bend and the scale fits all three dimensions.
+    """
+
+    # extents only need the outline: a few thousand points keep the many
+    # evaluations of the bisection cheap
+    body_points = body_points[:: max(1, len(body_points) // 4000)]
+
+    def extent(scale, curvature):
+        d = Deformation(taper, half_height, lean, scale, curvature, np.eye(4))
+        return np.ptp(d.to_body(body_points), axis=0)
+
+    straight = extent(np.ones(3), 0.0)
+    scale = target / straight
+    if width_from_bend:
+        scale[0] = scale[1]  # a round cross-section; the bend makes the width
+    side = math.copysign(1.0, sagitta) if sagitta else 1.0
+    # a sagitta s over the chord c is a curvature 8 s / (c^2 + 4 s^2)
+    curvature = side * 8.0 * abs(sagitta) / (target[2] ** 2 + 4 * sagitta**2)
+    for _ in range(8):  # the bend shortens the chord: refit the height
+        if width_from_bend and extent(scale, 0.0)[0] < target[0]:
+            # the width grows with the curvature up to a half circle of the body length
+            lo, hi = 0.0, math.pi / (straight[2] * scale[2])
+            for _ in range(30):
+                mid = 0.5 * (lo + hi)
+                lo, hi = (mid, hi) if extent(scale, side * mid)[0] < target[0] else (lo, mid)
+            curvature = side * lo
+        ext = extent(scale, curvature)
+        if np.abs(ext - target).max() < 0.01:
+            break
+        scale[2] *= target[2] / ext[2]
+        if not width_from_bend:
+            scale[:2] *= target[:2] / ext[:2]
+    return scale, curvature
+
+
+def _sample_dimensions(spec: ProductSpec, rng: np.random.Generator) -> np.ndarray:
+    rho = spec.correlation
+    cov = np.full((3, 3), rho) + (1 - rho) * np.eye(3)
+    z = rng.multivariate_normal(np.zeros(3), cov)
+    z = np.clip(z, -2.5, 2.5)  # no freaks: real populations are graded
+    return np.asarray(spec.dimensions_mm) + z * np.asarray(spec.dimensions_sd_mm)
+
+
+def _band_volume(f, origin: np.ndarray, shape: tuple[int, int, int], h: float, full: bool) -> np.ndarray:
+    """Sample ``f`` on a grid, exactly only near its zero level set.
+
+    The grid is first sampled every 4th voxel; blocks whose corners are all far
+    from the surface (farther than ``f`` can change inside a block) take the
+    sign of their corners, the others are sampled exactly. Marching cubes only
+    needs exact values on edges that cross the surface, so the result is the
+    same as a full sampling at a quarter of the cost.
+    """
+
+    def sample(idx: np.ndarray) -> np.ndarray:
+        return f(origin + idx * h)
+
+    nx, ny, nz = shape
+    if full:
+        ii = np.stack(np.meshgrid(np.arange(nx), np.arange(ny), np.arange(nz), indexing="ij"), -1)
+        return sample(ii.reshape(-1, 3).astype(float)).reshape(shape)
+    b = 4
+    m = [(n - 1) // b for n in shape]
+    ci = np.stack(np.meshgrid(*[np.arange(k + 1) * b for k in m], indexing="ij"), -1)
+    coarse = sample(ci.reshape(-1, 3).astype(float)).reshape(tuple(k + 1 for k in m))
+    corners = np.stack(
+        [coarse[i : i + m[0], j : j + m[1], k : k + m[2]] for i in (0, 1) for j in (0, 1) for k in (0, 1)]
+    )
+    # |grad f| <= ~1.6 in scanner mm (distance-like primitives under mild scaling)
+    margin = 1.6 * b * h * math.sqrt(3.0) + 2 * h
+    near = (np.abs(corners).min(axis=0) < margin) | (np.sign(corners).min(axis=0) != np.sign(corners).max(axis=0))
+    fill = np.where(corners.mean(axis=0) < 0, -margin, margin)
+    grid = np.repeat(np.repeat(np.repeat(fill, b, 0), b, 1), b, 2)
+    mask = np.repeat(np.repeat(np.repeat(near, b, 0), b, 1), b, 2)
+    # the grid is (b*m + 1) long: the last layer belongs to the last block
+    grid = np.pad(grid, [(0, 1)] * 3, mode="edge")
+    mask = np.pad(mask, [(0, 1)] * 3, mode="edge")
+    idx = np.argwhere(mask)
+    grid[mask] = sample(idx.astype(float))
+    return grid
+
+
+def make_instance(
+    product: str,
+    *,
+    random_state: RandomState = None,
+    pose: str = "upright",
+    noise: float = 0.0,
+    n_vertices: int | None = None,
+    volume: bool = False,
+    name: str | None = None,
+) -> SyntheticInstance:
+    """Make one synthetic scan of ``product`` with its ground truth.
+
+    Parameters
+    ----------
+    product : {"apple", "pepper", "zucchini", "pear", "banana"}
+    random_state : int, Generator, SeedSequence or None, default: None
+        Seed; the same seed gives the same instance.
+    pose : {"upright", "random", "canonical"}, default: "upright"
+        Scanner pose: standing (random turn about the vertical, tilt up to 8
+        degrees), any rotation, or none (body frame = scanner frame).
+    noise : float, default: 0.0
+        Standard deviation (mm) of Gaussian scanner noise added to the vertices
+        along their normals. Ground truth is that of the noise-free surface.
+    n_vertices : int, optional
+        About how many vertices the scan should have (the voxel size is chosen
+        for it). Default: drawn between 70,000 and 130,000.
+    volume : bool, default: False
+        Also return a CT-like intensity volume (``instance.volume``).
+    name : str, optional
+        Default ``"<product>"``.
+
+    Returns
+    -------
+    SyntheticInstance
+
+    Examples
+    --------
+    >>> inst = make_instance("apple", random_state=0, n_vertices=20000)
+    >>> inst.mesh.n_vertices > 10000, sorted(inst.landmarks)
+    (True, ['bottom', 'stalk_tip'])
+    """
+    if product not in PRODUCTS:
+        raise HortishapeError(f"unknown product {product!r}: choose from {', '.join(PRODUCTS)}")
+    if noise < 0 or not math.isfinite(noise):
+        raise HortishapeError(f"noise must be a non-negative number of millimetres, got {noise}")
+    spec = PRODUCTS[product]
+    rng = as_generator(random_state)
+    canon = spec.canonical(rng)
+
+    # Canonical extent of the body (stalk excluded), to scale to the sampled size.
+    c_verts, c_faces = _canonical_surface(canon)
+    labels = canon.part_labels(c_verts)
+    body_idx = [list(canon.parts).index(p) for p in canon.body_parts]
+    body = np.isin(labels, body_idx)
+    body_z = c_verts[body, 2]
+    half_height = 0.5 * float(body_z.max() - body_z.min())
+
+    target = _sample_dimensions(spec, rng)
+    taper = float(np.clip(rng.normal(0.0, spec.taper_sd), -2.5 * spec.taper_sd, 2.5 * spec.taper_sd))
+    lean = float(rng.normal(0.0, spec.lean_sd)) if spec.lean_sd else 0.0
+    side = math.copysign(1.0, rng.uniform(-1, 1))
+    sagitta = max(float(rng.normal(*spec.bend_mm)), 0.0) if spec.bend_mm[0] > 0 else 0.0
+    scale, curvature = _fit_size(c_verts[body], taper, half_height, lean, target, sagitta * side,
+                                 width_from_bend=spec.width_from_bend)
+    pose_m = _random_pose(rng, pose)
+    deform = Deformation(taper, half_height, lean, scale, curvature, pose_m)
+
+    # Voxel size from the surface area: marching cubes gives ~1.25 vertices per h^2
+    # (measured over the five products: 1.19-1.28).
+    scan_area = _mesh_area(deform.to_body(c_verts), c_faces)
+    n_target = int(n_vertices) if n_vertices else int(rng.uniform(70_000, 130_000))
+    h = math.sqrt(1.25 * scan_area / n_target)
+
+    # Scanner grid around the instance. The coarse canonical mesh can miss the
+    # tip of a thin stalk, so the landmarks and a few millimetres are added.
+    lm_canon = {k: _surface_point_on_ray(canon, o, d) for k, (o, d) in canon.landmark_rays.items()}
+    s_verts = deform.forward(np.vstack([c_verts, *lm_canon.values()]))
+    lo = s_verts.min(axis=0) - 4 * h - 3.0
+    hi = s_verts.max(axis=0) + 4 * h + 3.0
+    shape = tuple(int(4 * math.ceil((hi[i] - lo[i]) / h / 4)) + 1 for i in range(3))
+
+    def field_at(x):
+        return canon(deform.inverse(x))
+
+    grid = _band_volume(field_at, lo, shape, h, full=volume)
+    from skimage.measure import marching_cubes
+
+    verts, faces, _, _ = marching_cubes(grid, 0.0, spacing=(h, h, h), allow_degenerate=True)
+    verts = verts + lo
+    faces = faces.astype(np.int64)
+    if _signed_volume(verts, faces) < 0:  # outward normals
+        faces = faces[:, ::-1].copy()
+
+    canonical = deform.inverse(verts)
+    parts = canon.part_labels(canonical)
+    if noise > 0:
+        normals = _vertex_normals(verts, faces)
+        verts = verts + normals * rng.normal(0.0, noise, size=(len(verts), 1))
+
+    lm = {k: deform.forward(v[None, :])[0] for k, v in lm_canon.items()}
+    body_v = np.isin(parts, body_idx)
+    dims = np.ptp(deform.to_body(canonical[body_v]), axis=0)
+
+    vol = _ct_volume(grid, lo, h, canon, deform, product, rng) if volume else None
+    return SyntheticInstance(
+        name=name or product,
+        product=product,
+        mesh=Mesh(verts, faces),
+        canonical=canonical,
+        parts=parts,
+        part_names=tuple(canon.parts),
+        landmarks=lm,
+        landmarks_canonical=lm_canon,
+        pose=pose_m,
+        dimensions=dims,
+        deformation=deform,
+        voxel_size=h,
+        volume=vol,
+    )
+
+
+def _mesh_area(v: np.ndarray, f: np.ndarray) -> float:
+    return 0.5 * float(np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1).sum())
+
+
+def _signed_volume(v: np.ndarray, f: np.ndarray) -> float:
+    return float(np.einsum("ij,ij->i", v[f[:, 0]], np.cross(v[f[:, 1]], v[f[:, 2]])).sum() / 6.0)
+
+
+def _vertex_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    n = np.zeros_like(v)
+    for k in range(3):
+        np.add.at(n, f[:, k], fn)
+    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+
+
+def _ct_volume(grid, origin, h, canon, deform, product, rng):
+    """A CT-like volume: flesh, air, blur and noise on the scan grid.
+
+    The intensity is an analytic partial-volume edge (an error function of the
+    distance to the surface, 0.7 voxel wide), so the half-way iso-level lies on
+    the true surface; peppers are hollow (6 mm wall) and apples have a
+    lower-density core.
+    """
+    from scipy.special import erf
+
+    from .io import Volume
+
+    g = np.gradient(grid, h)
+    gn = np.sqrt(g[0] ** 2 + g[1] ** 2 + g[2] ** 2)
+    dist = grid / np.maximum(gn, 1e-6)  # signed distance (mm), negative inside
+    sigma = 0.7 * h
+    flesh = 0.5 * (1.0 - erf(dist / (sigma * math.sqrt(2.0))))
+    density = np.full(grid.shape, 1000.0)
+    if product in ("pepper", "apple"):
+        idx = np.argwhere(grid < -3.0)
+        c = deform.inverse(origin + idx * h)
+        if product == "pepper":
+            # hollow: air wherever the flesh is more than the wall thickness deep
+            hollow = dist[tuple(idx.T)] < -6.0
+            density[tuple(idx[hollow].T)] = 0.0
+        else:
+            core = np.hypot(c[:, 0], c[:, 1]) ** 2 / 12.0**2 + c[:, 2] ** 2 / 22.0**2 < 1.0
+            density[tuple(idx[core].T)] = 700.0
+    values = flesh * density + rng.normal(0.0, 25.0, size=grid.shape)
+    values = np.clip(values, -1000, 3000).astype(np.int16)
+    return Volume(values, spacing=np.full(3, h), origin=origin, direction=np.eye(3))
+
+
+# --------------------------------------------------------------------------
+# Ground-truth correspondence
+# --------------------------------------------------------------------------
+
+
+def closest_points(points, vertices, faces) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Closest points on a triangle mesh.
+
+    Looks up the nearest vertex (k-d tree) and projects onto the triangles
+    around it and around its nearest neighbours, which is exact for points
+    close to a fine mesh (the use here: ground-truth lookups).
+
+    Parameters
+    ----------
+    points : (k, 3) array_like of float
+    vertices : (n, 3) array_like of float
+    faces : (m, 3) array_like of int
+
+    Returns
+    -------
+    closest : (k, 3) float64 ndarray
+    face : (k,) int64 ndarray
+        Triangle holding each closest point.
+    barycentric : (k, 3) float64 ndarray
+
+    Examples
+    --------
+    >>> v = np.array([[0., 0, 0], [1, 0, 0], [0, 1, 0]]); f = np.array([[0, 1, 2]])
+    >>> closest_points([[0.2, 0.2, 1.0]], v, f)[0].round(6).tolist()
+    [[0.2, 0.2, 0.0]]
+    """
+    from scipy.spatial import cKDTree
+
+    p = np.asarray(points, dtype=float).reshape(-1, 3)
+    v = np.asarray(vertices, dtype=float)
+    f = np.asarray(faces, dtype=np.int64)
+    # vertex -> incident faces, as a padded table
+    vf_v = f.ravel()
+    vf_f = np.repeat(np.arange(len(f)), 3)
+    order = np.argsort(vf_v, kind="stable")
+    vf_v, vf_f = vf_v[order], vf_f[order]
+    counts = np.bincount(vf_v, minlength=len(v))
+    start = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    width = int(counts.max())
+    table = np.full((len(v), width), -1, dtype=np.int64)
+    col = np.arange(len(vf_v)) - start[vf_v]
+    table[vf_v, col] = vf_f
+
+    _, nn = cKDTree(v).query(p, k=min(3, len(v)))
+    nn = np.atleast_2d(nn.reshape(len(p), -1))
+    cand = table[nn].reshape(len(p), -1)  # (k, 3*width)
+    valid = cand >= 0
+    cf = np.where(valid, cand, 0)
+    a, b, c = v[f[cf, 0]], v[f[cf, 1]], v[f[cf, 2]]
+    q, bary = _closest_on_triangles(p[:, None, :], a, b, c)
+    d2 = np.where(valid, ((q - p[:, None, :]) ** 2).sum(-1), np.inf)
+    best = np.argmin(d2, axis=1)
+    rows = np.arange(len(p))
+    return q[rows, best], cf[rows, best], bary[rows, best]
+
+
+def _closest_on_triangles(p, a, b, c):
+    """Closest point on triangles (broadcast); returns points and barycentrics.
+
+    Ericson, Real-Time Collision Detection, 5.1.5, vectorised.
+    """
+    ab, ac, ap = b - a, c - a, p - a
+    d1 = (ab * ap).sum(-1)
+    d2 = (ac * ap).sum(-1)
+    bp = p - b
+    d3 = (ab * bp).sum(-1)
+    d4 = (ac * bp).sum(-1)
+    cp = p - c
+    d5 = (ab * cp).sum(-1)
+    d6 = (ac * cp).sum(-1)
+    va = d3 * d6 - d5 * d4
+    vb = d5 * d2 - d1 * d6
+    vc = d1 * d4 - d3 * d2
+    denom = va + vb + vc
+    denom = np.where(np.abs(denom) < 1e-30, 1e-30, denom)
+    v = vb / denom
+    w = vc / denom
+    u = 1.0 - v - w
+    bary = np.stack([u, v, w], -1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        # region tests, most specific last so they override
+        t_ab = np.clip(d1 / (d1 - d3), 0, 1)
+        t_ac = np.clip(d2 / (d2 - d6), 0, 1)
+        t_bc = np.clip((d4 - d3) / ((d4 - d3) + (d5 - d6)), 0, 1)
+    conds = [
+        ((vc <= 0) & (d1 >= 0) & (d3 <= 0), np.stack([1 - t_ab, t_ab, 0 * t_ab], -1)),
+        ((vb <= 0) & (d2 >= 0) & (d6 <= 0), np.stack([1 - t_ac, 0 * t_ac, t_ac], -1)),
+        ((va <= 0) & ((d4 - d3) >= 0) & ((d5 - d6) >= 0), np.stack([0 * t_bc, 1 - t_bc, t_bc], -1)),
+        ((d1 <= 0) & (d2 <= 0), _unit(0, d1.shape)),
+        ((d3 >= 0) & (d4 <= d3), _unit(1, d1.shape)),
+        ((d6 >= 0) & (d5 <= d6), _unit(2, d1.shape)),
+    ]
+    for cond, val in conds:
+        bary = np.where(cond[..., None], val, bary)
+    bary = np.nan_to_num(bary, nan=1.0 / 3.0)
+    q = bary[..., :1] * a + bary[..., 1:2] * b + bary[..., 2:] * c
+    return q, bary
+
+
+def _unit(i: int, shape) -> np.ndarray:
+    out = np.zeros((*shape, 3))
+    out[..., i] = 1.0
+    return out
+
+
+def true_correspondence(canonical_points, instance: SyntheticInstance) -> np.ndarray:
+    """Where canonical points lie on ``instance``, in its scanner coordinates (mm).
+
+    Each canonical point is matched to the closest point of the instance's
+    surface in canonical space; its barycentric coordinates then give the
+    position on the scan. Where the instance has the point's canonical shape
+    exactly, this is the exact ground truth; where instance features differ
+    (a longer stalk, four lobes instead of three) it is the nearest anatomical
+    place.
+
+    Parameters
+    ----------
+    canonical_points : (k, 3) array_like of float
+    instance : SyntheticInstance
+
+    Returns
+    -------
+    (k, 3) float64 ndarray
+
+    Examples
+    --------
+    >>> a = make_instance("apple", random_state=1, n_vertices=20000)
+    >>> b = make_instance("apple", random_state=2, n_vertices=20000)
+    >>> true_correspondence(a.landmarks_canonical["bottom"][None], b).shape
+    (1, 3)
+    """
+    _, face, bary = closest_points(canonical_points, instance.canonical, instance.mesh.faces)
+    tri = instance.mesh.vertices[instance.mesh.faces[face]]
+    return np.einsum("kj,kjd->kd", bary, tri)
+
+
+# --------------------------------------------------------------------------
+# Files
+# --------------------------------------------------------------------------
+
+
+def _truth_paths(mesh_path: Path) -> tuple[Path, Path]:
+    stem = mesh_path.with_suffix("")
+    return stem.with_name(stem.name + ".truth.json"), stem.with_name(stem.name + ".truth.npz")
+
+
+def write_instance(instance: SyntheticInstance, out_dir, *, random_seed: int | None = None) -> Path:
+    """Write an instance: ``<name>.ply`` and its ground truth beside it.
+
+    Files: ``<name>.ply`` (binary PLY, scanner coordinates, mm),
+    ``<name>.truth.json`` (product, pose, landmarks in scanner and canonical
+    coordinates, dimensions, voxel size, deformation parameters),
+    ``<name>.truth.npz`` (``canonical`` (n, 3) float32 and ``parts`` (n,)
+    uint8, in vertex order) and, if the instance has one,
+    ``volumes/<name>.mha``. Every file is written atomically.
+
+    Returns
+    -------
+    pathlib.Path
+        The mesh file.
+    """
+    from .io import write_mesh, write_volume
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    mesh_path = out / f"{instance.name}.ply"
+    json_path, npz_path = _truth_paths(mesh_path)
+    write_mesh(mesh_path, instance.mesh)
+    d = instance.deformation
+    truth = {
+        "product": instance.product,
+        "name": instance.name,
+        "seed": random_seed,
+        "units": "mm",
+        "n_vertices": instance.mesh.n_vertices,
+        "voxel_size_mm": instance.voxel_size,
+        "dimensions_mm": {"width": float(instance.dimensions[0]), "depth": float(instance.dimensions[1]),
+                          "height": float(instance.dimensions[2])},
+        "pose": instance.pose.tolist(),
+        "landmarks": {k: v.tolist() for k, v in instance.landmarks.items()},
+        "landmarks_canonical": {k: v.tolist() for k, v in instance.landmarks_canonical.items()},
+        "part_names": list(instance.part_names),
+        "deformation": {"taper": d.taper, "half_height_mm": d.half_height, "lean": d.lean,
+                        "scale": d.scale.tolist(), "curvature_per_mm": d.curvature},
+        "arrays": npz_path.name,
+    }
+    _atomic_write(json_path, lambda p: p.write_text(json.dumps(truth, indent=2)))
+    _atomic_write(
+        npz_path,
+        lambda p: np.savez_compressed(
+            p.open("wb"), canonical=instance.canonical.astype(np.float32), parts=instance.parts
+        ),
+    )
+    if instance.volume is not None:
+        (out / "volumes").mkdir(exist_ok=True)
+        write_volume(out / "volumes" / f"{instance.name}.mha", instance.volume)
+    return mesh_path
+
+
+def _atomic_write(path: Path, write: Callable[[Path], object]) -> None:
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def read_truth(mesh_path) -> dict:
+    """Read the ground truth written beside a synthetic mesh.
+
+    Returns the JSON content with ``canonical`` ((n, 3) float64) and ``parts``
+    added, and ``landmarks`` as arrays.
+
+    Raises
+    ------
+    HortishapeError
+        If the ground-truth files are missing.
+    """
+    json_path, npz_path = _truth_paths(Path(mesh_path))
+    if not json_path.is_file() or not npz_path.is_file():
+        raise HortishapeError(f"{mesh_path}: no ground truth beside it ({json_path.name}, {npz_path.name})")
+    truth = json.loads(json_path.read_text())
+    with np.load(npz_path) as z:
+        truth["canonical"] = z["canonical"].astype(np.float64)
+        truth["parts"] = z["parts"]
+    truth["landmarks"] = {k: np.asarray(v) for k, v in truth["landmarks"].items()}
+    truth["landmarks_canonical"] = {k: np.asarray(v) for k, v in truth["landmarks_canonical"].items()}
+    truth["pose"] = np.asarray(truth["pose"])
+    return truth
+
+
+def _make_and_write(args) -> tuple[str, int, list[float]]:
+    product, seed, index, out_dir, pose, noise, volume, entropy = args
+    inst = make_instance(product, random_state=seed, pose=pose, noise=noise, volume=volume,
+                         name=f"{product}_{index:03d}")
+    write_instance(inst, out_dir, random_seed=entropy)
+    return inst.name, inst.mesh.n_vertices, inst.dimensions.tolist()
+
+
+def make_population(
+    product: str, n: int, *, random_state: RandomState = None, pose: str = "upright", noise: float = 0.0,
+    n_vertices: int | None = None,
+) -> list[SyntheticInstance]:
+    """Make ``n`` instances of ``product`` (in memory).
+
+    Instance ``i`` depends only on ``random_state`` and ``i``.
+
+    Examples
+    --------
+    >>> pop = make_population("pepper", 2, random_state=3, n_vertices=20000)
+    >>> [p.name for p in pop]
+    ['pepper_000', 'pepper_001']
+    """
+    seeds = spawn_seeds(random_state, n)
+    return [
+        make_instance(product, random_state=s, pose=pose, noise=noise, n_vertices=n_vertices,
+                      name=f"{product}_{i:03d}")
+        for i, s in enumerate(seeds)
+    ]
+
+
+def write_population(
+    product: str,
+    n: int,
+    out_dir,
+    *,
+    random_state: int | None = None,
+    pose: str = "upright",
+    noise: float = 0.0,
+    volumes: bool = False,
+    n_jobs: int | None = None,
+    progress: Callable[[Iterable], Iterable] | None = None,
+) -> list[dict]:
+    """Make ``n`` instances of ``product`` and write them to ``out_dir``.
+
+    The instances are made in parallel over ``n_jobs`` processes (default: all
+    cores). See :func:`write_instance` for the files.
+
+    Parameters
+    ----------
+    product : str
+    n : int
+    out_dir : path
+    random_state : int or None, default: None
+    pose, noise : see :func:`make_instance`
+    volumes : bool, default: False
+        Also write a CT-like volume per instance under ``out_dir/volumes``.
+    n_jobs : int, optional
+    progress : callable, optional
+        Wraps the iterator of finished instances (e.g. ``tqdm``).
+
+    Returns
+    -------
+    list of dict
+        ``name``, ``n_vertices`` and ``dimensions_mm`` per instance, in order.
+    """
+    if product not in PRODUCTS:
+        raise HortishapeError(f"unknown product {product!r}: choose from {', '.join(PRODUCTS)}")
+    if n < 1:
+        raise HortishapeError(f"the number of instances must be at least 1, got {n}")
+    seeds = spawn_seeds(random_state, n)
+    jobs = [(product, s, i, str(out_dir), pose, noise, volumes, random_state) for i, s in enumerate(seeds)]
+    n_jobs = n_jobs or os.cpu_count() or 1
+    results: list = [None] * n
+    wrap = progress or (lambda it: it)
+    if n_jobs == 1 or n == 1:
+        for i, job in enumerate(wrap(jobs)):
+            results[i] = _make_and_write(job)
+    else:
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        with ProcessPoolExecutor(max_workers=min(n_jobs, n)) as pool:
+            futures = {pool.submit(_make_and_write, job): i for i, job in enumerate(jobs)}
+            for fut in wrap(as_completed(futures)):
+                results[futures[fut]] = fut.result()
+    return [{"name": r[0], "n_vertices": r[1], "dimensions_mm": r[2]} for r in results]

@@ -1,0 +1,196 @@
+"""Synthetic populations: dimensions, watertightness, determinism, ground truth."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from hortishape import synth
+from hortishape.errors import HortishapeError
+
+PRODUCTS = ["apple", "pepper", "zucchini", "pear", "banana"]
+
+
+@pytest.fixture(scope="module")
+def coarse_instances():
+    return {p: synth.make_instance(p, random_state=7, pose="random", n_vertices=20000) for p in PRODUCTS}
+
+
+@pytest.mark.parametrize("product", ["apple", "pepper", "zucchini"])
+def test_population_has_table1_dimensions(product):
+    # 30 instances, as in the paper; the dimensions are of the body, stalk excluded.
+    pop = synth.make_population(product, 30, random_state=2024, n_vertices=4000)
+    dims = np.array([p.dimensions for p in pop])
+    spec = synth.PRODUCTS[product]
+    mean, sd = np.asarray(spec.dimensions_mm), np.asarray(spec.dimensions_sd_mm)
+    # the sample mean of 30 lies within 3 standard errors of the table's mean ...
+    assert np.all(np.abs(dims.mean(axis=0) - mean) < 3 * sd / np.sqrt(30) + 0.5)
+    # ... and the spread is the table's within sampling error (and clipping at 2.5 SD)
+    ratio = dims.std(axis=0, ddof=1) / sd
+    assert np.all((ratio > 0.55) & (ratio < 1.5)), ratio
+
+
+@pytest.mark.parametrize("product", PRODUCTS)
+def test_instance_is_one_closed_outward_surface(coarse_instances, product):
+    inst = coarse_instances[product]
+    tm = trimesh.Trimesh(inst.mesh.vertices, inst.mesh.faces, process=False)
+    assert tm.is_watertight
+    assert tm.is_winding_consistent
+    assert tm.volume > 0  # outward normals
+    assert len(tm.split(only_watertight=False)) == 1
+    # vertices are in the order marching cubes made them: nothing was merged
+    assert inst.canonical.shape == inst.mesh.vertices.shape
+    assert set(np.unique(inst.parts)) <= set(range(len(inst.part_names)))
+
+
+def test_default_resolution_is_a_ct_scan():
+    inst = synth.make_instance("apple", random_state=3)
+    assert 50_000 <= inst.mesh.n_vertices <= 150_000
+    assert inst.voxel_size < 0.8
+
+
+def test_deterministic_for_a_seed():
+    a = synth.make_instance("pepper", random_state=42, pose="random", n_vertices=8000)
+    b = synth.make_instance("pepper", random_state=42, pose="random", n_vertices=8000)
+    c = synth.make_instance("pepper", random_state=43, pose="random", n_vertices=8000)
+    np.testing.assert_array_equal(a.mesh.vertices, b.mesh.vertices)
+    np.testing.assert_array_equal(a.mesh.faces, b.mesh.faces)
+    np.testing.assert_array_equal(a.canonical, b.canonical)
+    assert a.mesh.n_vertices != c.mesh.n_vertices or not np.allclose(a.mesh.vertices, c.mesh.vertices)
+
+
+def test_population_item_does_not_depend_on_population_size():
+    small = synth.make_population("apple", 2, random_state=9, n_vertices=4000)
+    large = synth.make_population("apple", 3, random_state=9, n_vertices=4000)
+    np.testing.assert_array_equal(small[1].mesh.vertices, large[1].mesh.vertices)
+
+
+@pytest.mark.parametrize("product", PRODUCTS)
+def test_canonical_coordinates_are_exact(coarse_instances, product):
+    inst = coarse_instances[product]
+    # forward map of the canonical coordinates gives back the scan's vertices
+    back = inst.deformation.forward(inst.canonical)
+    np.testing.assert_allclose(back, inst.mesh.vertices, atol=1e-9)
+    # and the canonical coordinates lie on the canonical shape: rebuild it from
+    # the seed (it is the first thing drawn) and evaluate its implicit function;
+    # marching cubes interpolates linearly, so "on" means within a small
+    # fraction of a voxel
+    canon = synth.PRODUCTS[product].canonical(np.random.default_rng(7))
+    level = np.abs(canon(inst.canonical))
+    assert np.median(level) < 0.05 * inst.voxel_size
+    assert np.percentile(level, 99) < 0.3 * inst.voxel_size
+    lm = inst.landmarks
+    tip = inst.deformation.inverse(lm["stalk_tip"][None])
+    np.testing.assert_allclose(tip[0], inst.landmarks_canonical["stalk_tip"], atol=1e-9)
+
+
+def test_true_correspondence_is_exact_between_poses_of_one_shape():
+    # same seed and resolution, other pose: the same shape, triangulated anew on another grid
+    a = synth.make_instance("pepper", random_state=11, pose="upright", n_vertices=30000)
+    b = synth.make_instance("pepper", random_state=11, pose="random", n_vertices=30000)
+    assert not np.allclose(a.pose, b.pose)
+    moved = b.pose @ np.linalg.inv(a.pose)
+    expected = a.mesh.vertices @ moved[:3, :3].T + moved[:3, 3]
+    found = synth.true_correspondence(a.canonical, b)
+    err = np.linalg.norm(found - expected, axis=1)
+    assert err.mean() < 0.01
+    assert np.percentile(err, 99) < 0.05
+
+
+@pytest.mark.parametrize("product", PRODUCTS)
+def test_landmarks_correspond_across_instances(product):
+    # the same canonical point is the same anatomical place on another instance
+    a = synth.make_instance(product, random_state=1, pose="random", n_vertices=20000)
+    b = synth.make_instance(product, random_state=2, pose="random", n_vertices=20000)
+    bottom = synth.true_correspondence(a.landmarks_canonical["bottom"][None], b)[0]
+    assert np.linalg.norm(bottom - b.landmarks["bottom"]) < 3.0
+    # stalks differ in length (by up to 14 mm) and bend: the carried tip lands
+    # on the stalk's end, near the tip
+    tip = synth.true_correspondence(a.landmarks_canonical["stalk_tip"][None], b)[0]
+    nearest = np.argmin(np.linalg.norm(b.mesh.vertices - tip, axis=1))
+    assert b.part_names[b.parts[nearest]] == "stalk"
+    assert np.linalg.norm(tip - b.landmarks["stalk_tip"]) < 15.0
+    # stalk tip at the top and bottom at the bottom of the body frame
+    body = np.linalg.inv(b.pose)
+    tip_z = (body[:3, :3] @ b.landmarks["stalk_tip"] + body[:3, 3])[2]
+    bottom_z = (body[:3, :3] @ b.landmarks["bottom"] + body[:3, 3])[2]
+    assert tip_z > bottom_z + 0.6 * b.dimensions[2] * (0.5 if product == "banana" else 1.0)
+
+
+def test_landmarks_lie_on_the_surface(coarse_instances):
+    for inst in coarse_instances.values():
+        for name, p in inst.landmarks.items():
+            d = np.linalg.norm(inst.mesh.vertices - p, axis=1).min()
+            assert d < 2 * inst.voxel_size, (inst.product, name, d)
+
+
+def test_stalk_vertices_are_labelled(coarse_instances):
+    inst = coarse_instances["apple"]
+    stalk = inst.parts == inst.part_names.index("stalk")
+    assert 50 < stalk.sum() < 0.1 * len(stalk)
+    tip = inst.landmarks["stalk_tip"]
+    nearest = np.argmin(np.linalg.norm(inst.mesh.vertices - tip, axis=1))
+    assert stalk[nearest]
+
+
+def test_pose_options(coarse_instances):
+    up = synth.make_instance("zucchini", random_state=4, pose="upright", n_vertices=8000)
+    axis = up.pose[:3, 2]  # body z in scanner coordinates
+    assert axis[2] > np.cos(np.deg2rad(10))
+    canon = synth.make_instance("zucchini", random_state=4, pose="canonical", n_vertices=8000)
+    np.testing.assert_array_equal(canon.pose, np.eye(4))
+
+
+def test_noise_moves_vertices_not_ground_truth():
+    clean = synth.make_instance("apple", random_state=5, n_vertices=8000)
+    noisy = synth.make_instance("apple", random_state=5, n_vertices=8000, noise=0.2)
+    np.testing.assert_array_equal(clean.canonical, noisy.canonical)
+    d = np.linalg.norm(noisy.mesh.vertices - clean.mesh.vertices, axis=1)
+    assert 0.1 < d.mean() < 0.3
+
+
+def test_ct_volume_is_hollow_for_pepper():
+    inst = synth.make_instance("pepper", random_state=6, pose="canonical", n_vertices=8000, volume=True)
+    vol = inst.volume
+    # scanner frame = body frame here: the centre of the pepper is air, the wall is flesh
+    centre = np.round(vol.world_to_index(np.array([[0.0, 0.0, 0.0]]))[0]).astype(int)
+    assert vol.data[tuple(centre)] < 300
+    wall = inst.mesh.vertices[np.argmax(inst.mesh.vertices[:, 0])] - [3.0, 0.0, 0.0]
+    wi = np.round(vol.world_to_index(wall[None])[0]).astype(int)
+    assert vol.data[tuple(wi)] > 700
+    corner = vol.data[0, 0, 0]
+    assert corner < 300
+
+
+def test_files_round_trip(tmp_path):
+    from hortishape.io import read_mesh
+
+    rows = synth.write_population("pear", 2, tmp_path, random_state=8, n_jobs=1)
+    assert [r["name"] for r in rows] == ["pear_000", "pear_001"]
+    again = synth.make_population("pear", 2, random_state=8)
+    for row, inst in zip(rows, again):
+        mesh = read_mesh(tmp_path / f"{row['name']}.ply")
+        np.testing.assert_allclose(mesh.vertices, inst.mesh.vertices, atol=1e-4)
+        truth = synth.read_truth(tmp_path / f"{row['name']}.ply")
+        assert truth["product"] == "pear"
+        np.testing.assert_allclose(truth["canonical"], inst.canonical, atol=1e-3)
+        np.testing.assert_allclose(truth["landmarks"]["stalk_tip"], inst.landmarks["stalk_tip"])
+        np.testing.assert_allclose(truth["pose"], inst.pose)
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"product": "kiwi"}, "unknown product"),
+        ({"product": "apple", "pose": "sideways"}, "unknown pose"),
+        ({"product": "apple", "noise": -1.0}, "noise"),
+    ],
+)
+def test_bad_arguments(kwargs, match):
+    product = kwargs.pop("product")
+    with pytest.raises(HortishapeError, match=match):
+        synth.make_instance(product, random_state=0, n_vertices=2000, **kwargs)
+
+
+def test_bad_population_size(tmp_path):
+    with pytest.raises(HortishapeError, match="at least 1"):
+        synth.write_population("apple", 0, tmp_path)
