@@ -1107,9 +1107,9 @@ def read_truth(mesh_path) -> dict:
 
 
 def _make_and_write(args) -> tuple[str, int, list[float]]:
-    product, seed, index, out_dir, pose, noise, volume, entropy = args
-    inst = make_instance(product, random_state=seed, pose=pose, noise=noise, volume=volume,
-                         name=f"{product}_{index:03d}")
+    product, seed, index, out_dir, pose, noise, n_vertices, volume, entropy = args
+    inst = make_instance(product, random_state=seed, pose=pose, noise=noise, n_vertices=n_vertices,
+                         volume=volume, name=f"{product}_{index:03d}")
     write_instance(inst, out_dir, random_seed=entropy)
     return inst.name, inst.mesh.n_vertices, inst.dimensions.tolist()
 
@@ -1144,6 +1144,7 @@ def write_population(
     random_state: int | None = None,
     pose: str = "upright",
     noise: float = 0.0,
+    n_vertices: int | None = None,
     volumes: bool = False,
     n_jobs: int | None = None,
     progress: Callable[[Iterable], Iterable] | None = None,
@@ -1159,7 +1160,7 @@ def write_population(
     n : int
     out_dir : path
     random_state : int or None, default: None
-    pose, noise : see :func:`make_instance`
+    pose, noise, n_vertices : see :func:`make_instance`
     volumes : bool, default: False
         Also write a CT-like volume per instance under ``out_dir/volumes``.
     n_jobs : int, optional
@@ -1176,7 +1177,8 @@ def write_population(
     if n < 1:
         raise HortishapeError(f"the number of instances must be at least 1, got {n}")
     seeds = spawn_seeds(random_state, n)
-    jobs = [(product, s, i, str(out_dir), pose, noise, volumes, random_state) for i, s in enumerate(seeds)]
+    jobs = [(product, s, i, str(out_dir), pose, noise, n_vertices, volumes, random_state)
+            for i, s in enumerate(seeds)]
     n_jobs = n_jobs or os.cpu_count() or 1
     results: list = [None] * n
     wrap = progress or (lambda it: it)

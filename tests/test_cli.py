@@ -1,0 +1,79 @@
+"""The command line: help, version, synth, and one clear line for bad input."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from hortishape import __version__
+from hortishape.cli import build_parser, main
+
+
+def run(*args):
+    return subprocess.run([sys.executable, "-m", "hortishape.cli", *args], capture_output=True, text=True)
+
+
+def test_version(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["--version"])
+    assert exc.value.code == 0
+    assert __version__ in capsys.readouterr().out
+
+
+def test_every_subcommand_has_help(capsys):
+    parser = build_parser()
+    commands = parser._subparsers._group_actions[0].choices
+    assert "synth" in commands
+    for name in commands:
+        with pytest.raises(SystemExit) as exc:
+            main([name, "--help"])
+        assert exc.value.code == 0
+        out = capsys.readouterr().out
+        assert f"usage: hortishape {name}" in out
+        assert "millimetres" in out
+
+
+def test_synth_writes_meshes_with_ground_truth(tmp_path, capsys):
+    out = tmp_path / "peppers"
+    assert main(["synth", "pepper", "2", str(out), "--seed", "3", "--vertices", "8000", "--jobs", "1"]) == 0
+    printed = capsys.readouterr().out
+    assert "pepper_001" in printed and "wrote 2 pepper scans" in printed
+    for i in range(2):
+        assert (out / f"pepper_{i:03d}.ply").is_file()
+        truth = json.loads((out / f"pepper_{i:03d}.truth.json").read_text())
+        assert set(truth["landmarks"]) == {"stalk_tip", "bottom"}
+        assert (out / f"pepper_{i:03d}.truth.npz").is_file()
+    # nothing half-written is left behind
+    assert not [p for p in out.iterdir() if p.name.startswith(".")]
+
+
+def test_synth_is_deterministic(tmp_path):
+    for name in ("a", "b"):
+        assert main(["synth", "apple", "1", str(tmp_path / name), "--seed", "5", "--vertices", "5000"]) == 0
+    assert (tmp_path / "a" / "apple_000.ply").read_bytes() == (tmp_path / "b" / "apple_000.ply").read_bytes()
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["synth", "kiwi", "2", "x"], "invalid choice"),
+        (["synth", "apple", "0", "x"], "at least 1"),
+        (["synth", "apple", "2", "x", "--noise", "-1"], "at least 0"),
+        (["synth", "apple", "two", "x"], "whole number"),
+    ],
+)
+def test_bad_arguments_exit_non_zero_with_one_message(args, message):
+    result = run(*args)
+    assert result.returncode != 0
+    assert message in result.stderr
+    assert "Traceback" not in result.stderr
+
+
+def test_unwritable_output_is_one_clear_line(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    result = run("synth", "apple", "1", str(blocker / "out"), "--vertices", "3000")
+    assert result.returncode == 1
+    assert result.stderr.startswith("hortishape: error:")
+    assert "Traceback" not in result.stderr
