@@ -1120,3 +1120,19 @@ def test_volume_formats():
         ".tif",
         ".tiff",
     )
+
+
+def test_reads_a_real_scan_in_metres():
+    """A real YCB scan (ASCII PLY with s, t and normals, in metres) reads with its order."""
+    from pathlib import Path
+
+    import trimesh
+
+    path = Path(__file__).parent / "data" / "ycb" / "013_apple_google16k.ply"
+    mesh = read_mesh(path)
+    assert mesh.n_vertices == 8194 and mesh.n_faces == 16384
+    extent = np.ptp(mesh.vertices, axis=0)
+    assert np.all((extent > 0.06) & (extent < 0.09))  # metres: about 75 mm across
+    assert trimesh.Trimesh(mesh.vertices, mesh.faces, process=False).is_watertight
+    first = path.read_text().split("end_header\n", 1)[1].splitlines()[0].split()
+    np.testing.assert_allclose(mesh.vertices[0], [float(x) for x in first[:3]])

@@ -48,10 +48,11 @@ def test_default_resolution_is_a_ct_scan():
     assert inst.voxel_size < 0.8
 
 
-def test_deterministic_for_a_seed():
-    a = synth.make_instance("pepper", random_state=42, pose="random", n_vertices=8000)
-    b = synth.make_instance("pepper", random_state=42, pose="random", n_vertices=8000)
-    c = synth.make_instance("pepper", random_state=43, pose="random", n_vertices=8000)
+@pytest.mark.parametrize("product", PRODUCTS)
+def test_deterministic_for_a_seed(product):
+    a = synth.make_instance(product, random_state=42, pose="random", n_vertices=5000)
+    b = synth.make_instance(product, random_state=42, pose="random", n_vertices=5000)
+    c = synth.make_instance(product, random_state=43, pose="random", n_vertices=5000)
     np.testing.assert_array_equal(a.mesh.vertices, b.mesh.vertices)
     np.testing.assert_array_equal(a.mesh.faces, b.mesh.faces)
     np.testing.assert_array_equal(a.canonical, b.canonical)

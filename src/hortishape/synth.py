@@ -857,9 +857,12 @@ def _ct_volume(grid, origin, h, canon, deform, product, rng):
         idx = np.argwhere(grid < -3.0)
         c = deform.inverse(origin + idx * h)
         if product == "pepper":
-            # hollow: air wherever the flesh is more than the wall thickness deep
-            hollow = dist[tuple(idx.T)] < -6.0
-            density[tuple(idx[hollow].T)] = 0.0
+            # hollow: air wherever the body is more than the wall thickness deep,
+            # with the same partial-volume edge as the outside
+            body = canon.part_labels(c) == list(canon.parts).index("body")
+            deep = dist[tuple(idx.T)] + 6.0
+            air = 0.5 * (1.0 - erf(deep / (sigma * math.sqrt(2.0))))
+            density[tuple(idx[body].T)] = 1000.0 * (1.0 - air[body])
         else:
             core = np.hypot(c[:, 0], c[:, 1]) ** 2 / 12.0**2 + c[:, 2] ** 2 / 22.0**2 < 1.0
             density[tuple(idx[core].T)] = 700.0
