@@ -1,0 +1,453 @@
+"""Surface utilities: uniform remeshing, normals, closest points and input checks.
+
+The registration (:mod:`hortishape.register`) needs a reference surface that is
+sampled uniformly with well-shaped triangles (the paper resamples it with
+Poisson-disk sampling to 30,000 vertices for apple, 40,000 for pepper and
+13,000 for zucchini, section 3.1). :func:`remesh` produces such a mesh and
+returns, for every new vertex, where it lies on the input (face index and
+barycentric coordinates), so per-vertex data of the input, e.g. anatomical
+coordinates, can be carried over with :func:`barycentric_interpolate`.
+
+Everything here is vectorised; nearest-point queries use libigl's AABB tree.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+from .errors import MeshError
+from .mesh import Mesh, unique_edges
+
+__all__ = [
+    "ClosestPoints",
+    "Remeshed",
+    "barycentric_interpolate",
+    "check_closed_surface",
+    "closest_points",
+    "face_areas",
+    "face_normals",
+    "mean_edge_length",
+    "remesh",
+    "vertex_normals",
+]
+
+
+# ----------------------------------------------------------------------------
+# basic differential quantities
+# ----------------------------------------------------------------------------
+
+
+def _face_cross(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    v0 = vertices[faces[:, 0]]
+    return np.cross(vertices[faces[:, 1]] - v0, vertices[faces[:, 2]] - v0)
+
+
+def face_areas(vertices, faces) -> np.ndarray:
+    """Triangle areas.
+
+    Parameters
+    ----------
+    vertices : (n, 3) array_like of float
+    faces : (m, 3) array_like of int
+
+    Returns
+    -------
+    (m,) float64 ndarray
+
+    Examples
+    --------
+    >>> face_areas([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]]).tolist()
+    [0.5]
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    return 0.5 * np.linalg.norm(_face_cross(v, f), axis=1)
+
+
+def face_normals(vertices, faces) -> np.ndarray:
+    """Unit face normals (right-hand rule on the face's vertex order).
+
+    Degenerate (zero-area) faces get a zero vector rather than NaN.
+
+    Parameters
+    ----------
+    vertices : (n, 3) array_like of float
+    faces : (m, 3) array_like of int
+
+    Returns
+    -------
+    (m, 3) float64 ndarray
+
+    Examples
+    --------
+    >>> face_normals([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]]).tolist()
+    [[0.0, 0.0, 1.0]]
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    c = _face_cross(v, f)
+    norm = np.linalg.norm(c, axis=1, keepdims=True)
+    return np.divide(c, norm, out=np.zeros_like(c), where=norm > 0)
+
+
+def vertex_normals(vertices, faces) -> np.ndarray:
+    """Area-weighted unit vertex normals.
+
+    Parameters
+    ----------
+    vertices : (n, 3) array_like of float
+    faces : (m, 3) array_like of int
+
+    Returns
+    -------
+    (n, 3) float64 ndarray
+        Unit normals; a vertex without faces gets a zero vector.
+
+    Examples
+    --------
+    >>> n = vertex_normals([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])
+    >>> n[0].tolist()
+    [0.0, 0.0, 1.0]
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    c = _face_cross(v, f)  # length = 2 * area: area weighting for free
+    idx = f.ravel()
+    out = np.empty_like(v)
+    for k in range(3):  # 3 bincounts beat np.add.at by ~20x
+        out[:, k] = np.bincount(idx, weights=np.repeat(c[:, k], 3), minlength=len(v))
+    norm = np.linalg.norm(out, axis=1, keepdims=True)
+    return np.divide(out, norm, out=np.zeros_like(out), where=norm > 0)
+
+
+def mean_edge_length(mesh: Mesh) -> float:
+    """Mean length of the unique edges of ``mesh`` (mm).
+
+    Examples
+    --------
+    >>> m = Mesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])
+    >>> round(mean_edge_length(m), 4)
+    1.1381
+    """
+    e = mesh.edges()
+    return float(np.linalg.norm(mesh.vertices[e[:, 0]] - mesh.vertices[e[:, 1]], axis=1).mean())
+
+
+def signed_volume(vertices, faces) -> float:
+    """Signed enclosed volume (positive when the faces wind outward)."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
+
+
+# ----------------------------------------------------------------------------
+# checks
+# ----------------------------------------------------------------------------
+
+
+def check_closed_surface(mesh: Mesh, *, name: str = "mesh", allow_degenerate: bool = False) -> float:
+    """Check that ``mesh`` is one closed, consistently oriented triangle surface.
+
+    Registration needs a closed surface: rays cast along normals must have an
+    inside and an outside, and the elastic step needs one connected edge graph.
+
+    Parameters
+    ----------
+    mesh : Mesh
+    name : str, default: "mesh"
+        What to call the mesh in error messages.
+    allow_degenerate : bool, default: False
+        If False, zero-area triangles raise :class:`MeshError`; if True they are
+        tolerated (a ray never hits them and their normal is zero).
+
+    Returns
+    -------
+    float
+        +1.0 if the faces wind outward (positive enclosed volume), -1.0 if they
+        wind inward. Callers multiply normals by it.
+
+    Raises
+    ------
+    MeshError
+        If the surface is open or non-manifold (an edge not shared by exactly
+        two faces), inconsistently oriented, has several connected components,
+        has unreferenced vertices, or (unless allowed) degenerate triangles.
+
+    Examples
+    --------
+    >>> import trimesh
+    >>> s = trimesh.creation.icosphere(2)
+    >>> check_closed_surface(Mesh(s.vertices, s.faces))
+    1.0
+    """
+    v, f = mesh.vertices, mesh.faces
+    n = len(v)
+    directed = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    # sort-based tests (np.unique / np.isin are several times slower here):
+    # a closed, consistently oriented manifold uses each directed edge once
+    # and its reverse exactly once, so the two sorted key lists are identical
+    key = np.sort(directed[:, 0] * n + directed[:, 1])
+    if (key[1:] == key[:-1]).any():
+        raise MeshError(
+            f"{name}: the surface is non-manifold or inconsistently oriented "
+            "(a directed edge is used by two faces)"
+        )
+    reverse = np.sort(directed[:, 1] * n + directed[:, 0])
+    if not np.array_equal(key, reverse):
+        n_open = int((~np.isin(reverse, key)).sum())
+        raise MeshError(
+            f"{name}: the surface is not closed ({n_open} boundary edges); "
+            "registration needs a watertight surface (fill the holes first)"
+        )
+    used = np.zeros(n, dtype=bool)
+    used[f.ravel()] = True
+    if not used.all():
+        raise MeshError(f"{name}: {int((~used).sum())} vertices are not used by any face")
+    graph = sp.coo_matrix((np.ones(len(directed)), (directed[:, 0], directed[:, 1])), shape=(n, n))
+    n_comp, labels = connected_components(graph, directed=False)
+    if n_comp > 1:
+        sizes = np.bincount(labels)
+        raise MeshError(
+            f"{name}: the surface has {n_comp} connected components "
+            f"(vertex counts {sorted(sizes.tolist(), reverse=True)[:5]}); "
+            "keep only the fruit's outer surface"
+        )
+    area = face_areas(v, f)
+    if not allow_degenerate:
+        # relative threshold: units do not matter
+        bad = area <= 1e-12 * max(float(area.mean()), np.finfo(float).tiny)
+        if bad.any():
+            raise MeshError(f"{name}: {int(bad.sum())} degenerate (zero-area) triangles")
+    vol = signed_volume(v, f)
+    return 1.0 if vol >= 0 else -1.0
+
+
+# ----------------------------------------------------------------------------
+# closest points and interpolation
+# ----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ClosestPoints:
+    """Nearest points on a surface (result of :func:`closest_points`).
+
+    Attributes
+    ----------
+    points : (k, 3) float64 ndarray
+        Nearest surface point of each query point.
+    distances : (k,) float64 ndarray
+        Euclidean distance from each query point to ``points``.
+    face_index : (k,) int64 ndarray
+        Face containing each nearest point.
+    barycentric : (k, 3) float64 ndarray
+        Barycentric coordinates of each nearest point in its face.
+    """
+
+    points: np.ndarray
+    distances: np.ndarray
+    face_index: np.ndarray
+    barycentric: np.ndarray
+
+
+def _barycentric(points, a, b, c) -> np.ndarray:
+    v0, v1, v2 = b - a, c - a, points - a
+    d00 = np.einsum("ij,ij->i", v0, v0)
+    d01 = np.einsum("ij,ij->i", v0, v1)
+    d11 = np.einsum("ij,ij->i", v1, v1)
+    d20 = np.einsum("ij,ij->i", v2, v0)
+    d21 = np.einsum("ij,ij->i", v2, v1)
+    den = d00 * d11 - d01 * d01
+    den = np.where(den == 0, 1.0, den)
+    w1 = (d11 * d20 - d01 * d21) / den
+    w2 = (d00 * d21 - d01 * d20) / den
+    bc = np.stack([1.0 - w1 - w2, w1, w2], axis=1)
+    # clamp round-off so the coordinates stay a convex combination
+    bc = np.clip(bc, 0.0, 1.0)
+    return bc / bc.sum(axis=1, keepdims=True)
+
+
+def closest_points(mesh: Mesh, points) -> ClosestPoints:
+    """Nearest points on ``mesh`` to each query point (libigl AABB tree).
+
+    Parameters
+    ----------
+    mesh : Mesh
+        The surface.
+    points : (k, 3) array_like of float
+        Query points.
+
+    Returns
+    -------
+    ClosestPoints
+
+    Examples
+    --------
+    >>> m = Mesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])
+    >>> cp = closest_points(m, [[0.2, 0.2, 1.0]])
+    >>> cp.points.round(6).tolist(), cp.distances.round(6).tolist()
+    ([[0.2, 0.2, 0.0]], [1.0])
+    """
+    import igl
+
+    p = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
+    sqd, fi, cp = igl.point_mesh_squared_distance(p, mesh.vertices, mesh.faces.astype(np.int32))
+    fi = np.asarray(fi, dtype=np.int64)
+    cp = np.asarray(cp, dtype=np.float64)
+    tri = mesh.faces[fi]
+    v = mesh.vertices
+    bc = _barycentric(cp, v[tri[:, 0]], v[tri[:, 1]], v[tri[:, 2]])
+    return ClosestPoints(cp, np.sqrt(np.maximum(np.asarray(sqd), 0.0)), fi, bc)
+
+
+def barycentric_interpolate(values, faces, face_index, barycentric) -> np.ndarray:
+    """Interpolate per-vertex ``values`` at points given by face and barycentrics.
+
+    Parameters
+    ----------
+    values : (n,) or (n, d) array_like
+        Per-vertex data of the mesh whose ``faces`` are given.
+    faces : (m, 3) array_like of int
+    face_index : (k,) array_like of int
+    barycentric : (k, 3) array_like of float
+
+    Returns
+    -------
+    (k,) or (k, d) float64 ndarray
+
+    Examples
+    --------
+    >>> barycentric_interpolate([0.0, 1.0, 2.0], [[0, 1, 2]], [0], [[0.2, 0.3, 0.5]]).tolist()
+    [1.3]
+    """
+    vals = np.asarray(values, dtype=np.float64)
+    tri = np.asarray(faces, dtype=np.int64)[np.asarray(face_index, dtype=np.int64)]
+    bc = np.asarray(barycentric, dtype=np.float64)
+    if vals.ndim == 1:
+        return np.einsum("kj,kj->k", vals[tri], bc)
+    return np.einsum("kjd,kj->kd", vals[tri], bc)
+
+
+# ----------------------------------------------------------------------------
+# remeshing
+# ----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Remeshed:
+    """A uniformly remeshed surface and its map back onto the input.
+
+    Attributes
+    ----------
+    mesh : Mesh
+        The new surface.
+    face_index : (n,) int64 ndarray
+        For each new vertex, the input face it lies on.
+    barycentric : (n, 3) float64 ndarray
+        Its barycentric coordinates in that input face. Per-vertex input data
+        ``values`` carry over as
+        ``barycentric_interpolate(values, input.faces, face_index, barycentric)``.
+    """
+
+    mesh: Mesh
+    face_index: np.ndarray
+    barycentric: np.ndarray
+
+
+def _target_edge_length(area: float, n_vertices: int) -> float:
+    # a closed mesh of equilateral triangles has 2 faces per vertex:
+    # area = n * 2 * (sqrt(3) / 4) h^2
+    return float(np.sqrt(2.0 * area / (np.sqrt(3.0) * n_vertices)))
+
+
+def remesh(mesh: Mesh, n_vertices: int = 30000, *, iterations: int = 10) -> Remeshed:
+    """Resample a closed surface uniformly to exactly ``n_vertices`` vertices.
+
+    Isotropic remeshing (Botsch & Kobbelt 2004: edge splits, collapses, flips
+    and tangential relaxation, projected back onto the input; gpytoolbox's
+    ``remesh_botsch``) at an edge length chosen to give slightly more than
+    ``n_vertices`` vertices, followed by shortest-edge collapses (libigl
+    ``decimate``) down to the exact count. This replaces the paper's Poisson
+    disk resampling (section 2.2.2): it gives the same uniform density and, in
+    addition, well-shaped triangles (minimum angle typically > 30 degrees) that
+    the elastic step of eq. 8 needs. Deterministic (no random choices).
+
+    Parameters
+    ----------
+    mesh : Mesh
+        Closed, single-component triangle surface (any resolution, mm).
+    n_vertices : int, default: 30000
+        Vertex count of the result (the paper: 30,000 apple, 40,000 pepper,
+        13,000 zucchini).
+    iterations : int, default: 10
+        Remeshing sweeps.
+
+    Returns
+    -------
+    Remeshed
+        The new mesh and, for each new vertex, its face and barycentric
+        coordinates on the input.
+
+    Raises
+    ------
+    MeshError
+        If the input is not a closed single-component surface or
+        ``n_vertices`` is below 100.
+
+    Examples
+    --------
+    >>> import trimesh
+    >>> s = trimesh.creation.icosphere(4, radius=40.0)
+    >>> r = remesh(Mesh(s.vertices, s.faces), 1000)
+    >>> r.mesh.n_vertices
+    1000
+    """
+    import warnings
+
+    import igl
+
+    with warnings.catch_warnings():
+        # gpytoolbox's package import trips numpy/scipy deprecation warnings
+        warnings.simplefilter("ignore", DeprecationWarning)
+        import gpytoolbox
+
+    n_vertices = int(n_vertices)
+    if n_vertices < 100:
+        raise MeshError(f"n_vertices must be at least 100, got {n_vertices}")
+    sign = check_closed_surface(mesh, name="remesh input", allow_degenerate=True)
+    v = mesh.vertices
+    f = mesh.faces if sign > 0 else mesh.faces[:, ::-1]
+    f32 = np.ascontiguousarray(f, dtype=np.int32)
+    area = float(face_areas(v, f).sum())
+    # aim a few percent above the target, then collapse down to it exactly
+    factor = 1.06
+    for _ in range(4):
+        h = _target_edge_length(area, int(n_vertices * factor))
+        # the binding wants writeable arrays; Mesh arrays are read-only
+        u, g = gpytoolbox.remesh_botsch(v.copy(), f32.copy(), iterations, h, True)
+        if len(u) >= n_vertices:
+            break
+        factor *= 1.03 * n_vertices / len(u)
+    else:  # pragma: no cover - remeshing keeps undershooting
+        raise MeshError(f"remeshing could not reach {n_vertices} vertices (got {len(u)})")
+    g = np.asarray(g, dtype=np.int32)
+    if len(u) > n_vertices:
+        # a closed genus-0 surface has F = 2V - 4; for other genera use Euler
+        euler = len(u) - len(unique_edges(g)) + len(g)
+        target_faces = 2 * (n_vertices - euler)
+        u, g, _, _ = igl.decimate(np.asarray(u, dtype=np.float64), g, target_faces)
+    u = np.asarray(u, dtype=np.float64)
+    g = np.asarray(g, dtype=np.int64)
+    if len(u) != n_vertices:  # pragma: no cover - decimation blocked
+        raise MeshError(f"remeshing produced {len(u)} vertices instead of {n_vertices}")
+    if sign < 0:
+        g = g[:, ::-1]
+    # vertices from collapses sit at edge midpoints, slightly off the input:
+    # project them back and record where every vertex lies on the input
+    cp = closest_points(Mesh(v, mesh.faces), u)
+    return Remeshed(Mesh(cp.points, np.ascontiguousarray(g)), cp.face_index, cp.barycentric)
+

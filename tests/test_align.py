@@ -1,0 +1,98 @@
+"""Tests of hortishape.align: principal axes (eqs. 1-7), candidates, least squares."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from hortishape.align import (
+    apply_transform,
+    candidate_alignments,
+    pca_alignment,
+    principal_axes,
+    rigid_fit,
+    rigid_transform,
+    rotation_about,
+)
+from hortishape.errors import MeshError
+
+
+def _egg(n=4000, seed=0):
+    """Points of an egg-like, asymmetric body: axes and signs are identifiable."""
+    rng = np.random.default_rng(seed)
+    p = rng.normal(size=(n, 3))
+    p /= np.linalg.norm(p, axis=1, keepdims=True)
+    p *= [30.0, 20.0, 12.0]
+    p[:, 0] += 0.01 * p[:, 0] ** 2  # skew along x
+    p[:, 1] += 0.02 * p[:, 1] ** 2  # skew along y
+    return p
+
+
+def test_principal_axes_of_ellipsoid():
+    s = trimesh.creation.icosphere(4)
+    v = s.vertices * [30.0, 20.0, 10.0] + [1.0, 2.0, 3.0]
+    pa = principal_axes(v)
+    np.testing.assert_allclose(pa.centroid, [1, 2, 3], atol=1e-6)
+    np.testing.assert_allclose(np.abs(pa.axes), np.eye(3), atol=1e-6)
+    assert pa.variances[0] > pa.variances[1] > pa.variances[2]
+    assert np.isclose(np.linalg.det(pa.axes), 1.0)
+
+
+def test_pca_alignment_recovers_rotation_with_deterministic_signs():
+    src = _egg()
+    r = rotation_about([1.0, -2.0, 0.5], 2.2)
+    t = pca_alignment(src, src @ r.T + [10.0, -5.0, 3.0])
+    np.testing.assert_allclose(t[:3, :3], r, atol=1e-6)
+    np.testing.assert_allclose(apply_transform(t, src), src @ r.T + [10.0, -5.0, 3.0], atol=1e-6)
+
+
+def test_candidates_are_24_proper_rotations_including_truth():
+    src = _egg()
+    r = rotation_about([0.3, 1.0, -0.2], 1.3)
+    cands = candidate_alignments(src, src @ r.T)
+    assert cands.shape == (24, 4, 4)
+    dets = np.linalg.det(cands[:, :3, :3])
+    np.testing.assert_allclose(dets, 1.0, atol=1e-9)
+    # all different, and the true rotation is among them (first: eq. 7's order)
+    flat = cands[:, :3, :3].reshape(24, 9)
+    assert len(np.unique(flat.round(6), axis=0)) == 24
+    assert np.allclose(cands[0, :3, :3], r, atol=1e-6)
+
+
+def test_candidates_with_axis_hint_keep_the_axis():
+    src = _egg()
+    up_s = np.array([0.0, 0.0, 1.0])
+    r = rotation_about([1.0, 1.0, 0.0], 0.8)
+    cands = candidate_alignments(src, src @ r.T, source_up=up_s, target_up=r @ up_s, n_twists=6)
+    assert len(cands) == 8
+    for c in cands:
+        np.testing.assert_allclose(c[:3, :3] @ up_s, r @ up_s, atol=1e-9)
+    with pytest.raises(ValueError):
+        candidate_alignments(src, src, source_up=up_s)
+
+
+def test_rigid_fit_known_motion_and_weights():
+    rng = np.random.default_rng(3)
+    s = rng.normal(size=(200, 3)) * 20
+    r = rotation_about([2, 1, 0], 0.9)
+    q = s @ r.T + [4.0, 5.0, 6.0]
+    t = rigid_fit(s, q)
+    np.testing.assert_allclose(t, rigid_transform(r, [4, 5, 6]), atol=1e-9)
+    # outliers with zero weight do not matter
+    q2 = q.copy()
+    q2[:20] += 100.0
+    w = np.ones(200)
+    w[:20] = 0
+    np.testing.assert_allclose(rigid_fit(s, q2, weights=w), t, atol=1e-9)
+    # never a reflection
+    assert np.isclose(np.linalg.det(rigid_fit(s, s * [1, 1, -1])[:3, :3]), 1.0)
+
+
+def test_inputs_not_mutated_and_bad_input():
+    src = _egg()
+    before = src.copy()
+    pca_alignment(src, src)
+    np.testing.assert_array_equal(src, before)
+    with pytest.raises(MeshError):
+        principal_axes(np.zeros((2, 3)))
+    with pytest.raises(MeshError):
+        principal_axes(np.full((10, 3), np.nan))

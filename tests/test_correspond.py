@@ -1,0 +1,102 @@
+"""Tests of hortishape.correspond: normal-ray casting and its three filters."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from hortishape.correspond import (
+    CROSSING,
+    DISTANCE,
+    KEPT,
+    NO_HIT,
+    NORMAL,
+    correspond,
+    prepare_target,
+)
+from hortishape.errors import MeshError
+from hortishape.mesh import Mesh
+
+
+def sphere(radius, centre=(0.0, 0.0, 0.0), level=4):
+    s = trimesh.creation.icosphere(level, radius=radius)
+    return Mesh(s.vertices + np.asarray(centre), s.faces)
+
+
+def _vertex_at(mesh, direction):
+    return int(np.argmax(mesh.vertices @ np.asarray(direction, dtype=float)))
+
+
+def test_concentric_spheres_outward_and_inward():
+    src = sphere(10.0)
+    c = correspond(src, sphere(12.0, level=5))
+    assert c.found.all() and (c.status == KEPT).all()
+    np.testing.assert_allclose(c.distances, 2.0, atol=0.05)
+    np.testing.assert_allclose(np.linalg.norm(c.points, axis=1), 12.0, atol=0.05)
+    # target inside the source: the inward ray is used
+    c2 = correspond(src, sphere(8.0, level=5))
+    assert c2.found.all()
+    np.testing.assert_allclose(np.linalg.norm(c2.points, axis=1), 8.0, atol=0.05)
+
+
+def test_filter_a_normal_rejects_opposite_facing_surface():
+    src = sphere(10.0)
+    # the top vertex's outward ray meets the underside of a small sphere above it:
+    # the target normal there points down, opposite to the source normal
+    tgt = sphere(3.0, centre=(0.0, 0.0, 20.0))
+    top = _vertex_at(src, [0, 0, 1])
+    c = correspond(src, tgt)
+    assert c.status[top] == NORMAL and not c.found[top]
+    # a wide tolerance lets it through
+    c180 = correspond(src, tgt, max_angle=180.0)
+    assert c180.found[top]
+    # a vertex on the equator: neither ray meets the small sphere
+    side = _vertex_at(src, [1, 0, 0])
+    assert c.status[side] == NO_HIT
+
+
+def test_filter_b_distance():
+    src = sphere(10.0)
+    tgt = sphere(12.0, level=5)
+    c = correspond(src, tgt, max_distance=1.5)
+    assert not c.found.any() and (c.status == DISTANCE).all()
+    assert correspond(src, tgt, max_distance=2.5).found.all()
+
+
+def test_filter_c_ray_crossing_the_source_first():
+    src = sphere(10.0)
+    # target beside the source: the leftmost vertex's inward ray passes through the
+    # source before reaching it; its normals agree and there is no distance limit
+    tgt = sphere(3.0, centre=(25.0, 0.0, 0.0))
+    left = _vertex_at(src, [-1, 0, 0])
+    c = correspond(src, tgt)
+    assert c.status[left] == CROSSING and not c.found[left]
+    c_off = correspond(src, tgt, check_crossings=False)
+    assert c_off.found[left]
+    np.testing.assert_allclose(c_off.points[left], [22.0, 0.0, 0.0], atol=0.05)
+    # the rightmost vertex sees the target's facing side, whose normal opposes
+    right = _vertex_at(src, [1, 0, 0])
+    assert c.status[right] == NORMAL
+
+
+def test_target_crossed_first_is_rejected():
+    # a thin shell: the outward ray of the inner sphere first meets the inner
+    # wall of a hollow target; only that first hit may be used
+    src = sphere(10.0)
+    a = trimesh.creation.icosphere(4, radius=14.0)
+    b = trimesh.creation.icosphere(4, radius=16.0)
+    b.faces = b.faces[:, ::-1]
+    shell = trimesh.util.concatenate([a, b])
+    with pytest.raises(MeshError, match="components"):
+        prepare_target(Mesh(shell.vertices, shell.faces))
+
+
+def test_prepared_target_reused_and_inputs_unchanged():
+    src = sphere(10.0)
+    tgt_mesh = sphere(11.0)
+    tgt = prepare_target(tgt_mesh)
+    before = src.vertices.copy()
+    a = correspond(src, tgt)
+    b = correspond(src, tgt_mesh)
+    np.testing.assert_array_equal(a.points, b.points)
+    np.testing.assert_array_equal(src.vertices, before)
+    assert a.kept_fraction == 1.0 and np.isclose(a.mean_distance, 1.0, atol=0.05)
