@@ -1,0 +1,644 @@
+"""Batches over files: register a reference to many scans, in parallel, resumably.
+
+The registrations of a batch run in worker processes, one scan each. Every
+result is written atomically as soon as it is done (``<stem>.ply`` with the
+registered reference and ``<stem>.json`` with its log), together with a
+fingerprint of what produced it (the reference, the configuration and the
+scan's bytes). Run the same batch again and finished scans are not redone;
+change the reference, the configuration or a scan and that scan is redone.
+
+A scan that cannot be used (unreadable, open, several components, wrong
+units) is reported and skipped, or stops the batch with ``strict=True``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import time
+import traceback
+import warnings
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Callable, Iterable, Sequence
+
+import numpy as np
+
+from .errors import ConvergenceWarning, HortishapeError
+from .io import is_mesh_file, mesh_formats, read_mesh, write_mesh
+from .mesh import Mesh
+from .register import Registration, RegistrationConfig, Template, prepare_reference, register
+
+__all__ = ["InstanceResult", "find_meshes", "register_files", "template_fingerprint"]
+
+Progress = Callable[[Iterable], Iterable]
+
+
+@dataclass(frozen=True)
+class InstanceResult:
+    """What happened to one scan of a batch.
+
+    Attributes
+    ----------
+    name : str
+        The scan's file stem (the name of its outputs).
+    source : str
+        The scan's path.
+    ok : bool
+        Whether it was registered.
+    error : str or None
+        Why not, in one line.
+    resumed : bool
+        Taken from an earlier run of the same batch instead of redone.
+    seconds : float
+        Wall time of its registration (of the earlier run when resumed).
+    iterations : int
+    converged : bool
+    mean_distance : float
+        ``d_t`` of the last iteration: mean distance of the kept
+        correspondences, mm.
+    geometric_error : float
+        Mean distance of the registered vertices to the scan's surface, mm
+        (the paper's Table 2 measure).
+    kept_fraction : float
+        Fraction of reference vertices with a kept correspondence at the end.
+    """
+
+    name: str
+    source: str
+    ok: bool
+    error: str | None = None
+    resumed: bool = False
+    seconds: float = 0.0
+    iterations: int = 0
+    converged: bool = False
+    mean_distance: float = float("nan")
+    geometric_error: float = float("nan")
+    kept_fraction: float = float("nan")
+
+
+def find_meshes(folder) -> list[Path]:
+    """The mesh files in ``folder`` (not its subfolders), sorted by name.
+
+    Raises
+    ------
+    HortishapeError
+        If ``folder`` is not a folder or holds no mesh file.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise HortishapeError(f"{folder}: not a folder")
+    files = sorted(p for p in folder.iterdir() if p.is_file() and is_mesh_file(p))
+    if not files:
+        raise HortishapeError(f"{folder}: no mesh files (looked for {', '.join(mesh_formats())})")
+    return files
+
+
+def template_fingerprint(template: Template, config: RegistrationConfig) -> str:
+    """A digest of what decides a registration's result besides the scan."""
+    h = hashlib.sha256()
+    h.update(np.ascontiguousarray(template.mesh.vertices).tobytes())
+    h.update(np.ascontiguousarray(template.mesh.faces).tobytes())
+    h.update(repr(config).encode())
+    return h.hexdigest()
+
+
+def _file_digest(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+# Worker state: the template is sent once per worker process, not once per scan.
+_WORKER: dict = {}
+
+
+def _init_worker(template: Template, config: RegistrationConfig, fingerprint: str) -> None:
+    _WORKER.update(template=template, config=config, fingerprint=fingerprint)
+    # numpy/BLAS threads would fight the other workers for the cores
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+
+def _atomic_text(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    try:
+        tmp.write_text(text)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def _result_from_log(log: dict, source: Path, *, resumed: bool) -> InstanceResult:
+    s = log["summary"]
+    return InstanceResult(
+        name=source.stem, source=str(source), ok=True, resumed=resumed, seconds=s["seconds"],
+        iterations=s["iterations"], converged=s["converged"], mean_distance=s["mean_distance_mm"],
+        geometric_error=s["geometric_error_mm"], kept_fraction=s["kept_fraction"],
+    )
+
+
+def _done_before(source: Path, out_dir: Path, fingerprint: str, digest: str) -> dict | None:
+    ply, log_path = out_dir / f"{source.stem}.ply", out_dir / f"{source.stem}.json"
+    if not (ply.is_file() and log_path.is_file()):
+        return None
+    try:
+        log = json.loads(log_path.read_text())
+    except (OSError, ValueError):
+        return None
+    if log.get("fingerprint") != fingerprint or log.get("source_sha256") != digest:
+        return None
+    return log
+
+
+def registration_log(reg: Registration, *, source: Path, fingerprint: str, digest: str,
+                     geometric_error: float) -> dict:
+    """The JSON-able log of one registration (what ``<stem>.json`` holds)."""
+    last = reg.log[-1]
+    return {
+        "source": str(source),
+        "source_sha256": digest,
+        "fingerprint": fingerprint,
+        "units": "mm",
+        "summary": {
+            "seconds": reg.seconds,
+            "iterations": len(reg.log),
+            "converged": bool(reg.converged),
+            "mean_distance_mm": float(last.mean_distance),
+            "geometric_error_mm": float(geometric_error),
+            "kept_fraction": float(last.kept_fraction),
+            "orientation_index": int(reg.orientation_index),
+        },
+        "transform": np.asarray(reg.transform).tolist(),
+        "iterations": [asdict(r) for r in reg.log],
+    }
+
+
+def _register_file(job) -> InstanceResult:
+    source, out_dir = job
+    source, out_dir = Path(source), Path(out_dir)
+    template, config, fingerprint = _WORKER["template"], _WORKER["config"], _WORKER["fingerprint"]
+    try:
+        digest = _file_digest(source)
+        done = _done_before(source, out_dir, fingerprint, digest)
+        if done is not None:
+            return _result_from_log(done, source, resumed=True)
+        target = read_mesh(source)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", ConvergenceWarning)  # reported as converged=False
+            reg = register(template, target, config)
+        from .surface import closest_points
+
+        geometric = float(closest_points(target, reg.vertices).distances.mean())
+        log = registration_log(reg, source=source, fingerprint=fingerprint, digest=digest,
+                               geometric_error=geometric)
+        write_mesh(out_dir / f"{source.stem}.ply", reg.mesh)
+        # the log last: its presence with the right fingerprint marks the scan done
+        _atomic_text(out_dir / f"{source.stem}.json", json.dumps(_jsonable(log), indent=1))
+        return _result_from_log(log, source, resumed=False)
+    except HortishapeError as exc:
+        msg = str(exc)
+        if not msg.startswith(str(source)):  # errors about "target" name the file here
+            msg = f"{source}: {msg}"
+        return InstanceResult(name=source.stem, source=str(source), ok=False, error=msg)
+    except OSError as exc:
+        return InstanceResult(name=source.stem, source=str(source), ok=False,
+                              error=f"{source}: {exc.strerror or exc}")
+    except Exception as exc:  # a bug must not lose the rest of the batch; say what it was
+        where = traceback.extract_tb(exc.__traceback__)[-1]
+        return InstanceResult(
+            name=source.stem, source=str(source), ok=False,
+            error=f"{source}: internal error {type(exc).__name__}: {exc} "
+                  f"(at {Path(where.filename).name}:{where.lineno}; please report it)",
+        )
+
+
+def register_files(
+    reference: Mesh | Template,
+    targets: Sequence,
+    out_dir,
+    *,
+    config: RegistrationConfig | None = None,
+    n_jobs: int | None = None,
+    strict: bool = False,
+    progress: Progress | None = None,
+) -> list[InstanceResult]:
+    """Register ``reference`` to every scan file and write the results.
+
+    For each scan ``<stem>.<ext>`` this writes ``out_dir/<stem>.ply`` (the
+    registered reference in the scan's coordinates: same vertex count, order
+    and faces for every scan) and ``out_dir/<stem>.json`` (log, transform,
+    fingerprint). Scans already registered by an earlier run with the same
+    reference and configuration are not redone.
+
+    Parameters
+    ----------
+    reference : Mesh or Template
+        The reference; a ``Mesh`` is used as it is (see
+        :func:`hortishape.register.prepare_reference` to resample it first).
+    targets : sequence of path
+        Scan files (any mesh format :mod:`hortishape.io` reads).
+    out_dir : path
+        Created if needed.
+    config : RegistrationConfig, optional
+        Default: the paper's.
+    n_jobs : int, optional
+        Worker processes; default: all cores.
+    strict : bool, default: False
+        Stop at the first scan that fails instead of skipping it.
+    progress : callable, optional
+        Wraps the iterator of finished scans (e.g. ``tqdm``).
+
+    Returns
+    -------
+    list of InstanceResult
+        In the order of ``targets``.
+
+    Raises
+    ------
+    HortishapeError
+        With ``strict=True``, for the first scan that fails; or if two scans
+        share a stem (their outputs would collide).
+    """
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    targets = [Path(t) for t in targets]
+    stems = [t.stem for t in targets]
+    dup = sorted({s for s in stems if stems.count(s) > 1})
+    if dup:
+        raise HortishapeError(f"several scans share the name {dup[0]!r}: their outputs would collide")
+    template = reference if isinstance(reference, Template) else prepare_reference(reference)
+    cfg = config if config is not None else RegistrationConfig()
+    fingerprint = template_fingerprint(template, cfg)
+    jobs = [(str(t), str(out_dir)) for t in targets]
+    results: list[InstanceResult | None] = [None] * len(jobs)
+    wrap = progress or (lambda it: it)
+    n_jobs = max(1, min(n_jobs or os.cpu_count() or 1, len(jobs)))
+
+    def handle(i: int, res: InstanceResult) -> None:
+        results[i] = res
+        if strict and not res.ok:
+            raise HortishapeError(res.error or f"{res.source}: failed")
+
+    if n_jobs == 1:
+        _init_worker(template, cfg, fingerprint)
+        try:
+            for i, job in enumerate(wrap(jobs)):
+                handle(i, _register_file(job))
+        finally:
+            _WORKER.clear()
+    else:
+        with ProcessPoolExecutor(max_workers=n_jobs, initializer=_init_worker,
+                                 initargs=(template, cfg, fingerprint)) as pool:
+            futures = {pool.submit(_register_file, job): i for i, job in enumerate(jobs)}
+            try:
+                for fut in wrap(as_completed(futures)):
+                    handle(futures[fut], fut.result())
+            except BaseException:
+                for f in futures:
+                    f.cancel()
+                raise
+    return results  # type: ignore[return-value]
+
+
+# --------------------------------------------------------------------------
+# building a model from a folder of scans
+# --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ScanCheck:
+    """A scan as read before registration: its size, or why it cannot be used."""
+
+    path: str
+    ok: bool
+    error: str | None = None
+    n_vertices: int = 0
+    size: float = float("nan")  # cube root of the enclosed volume, mm
+
+
+def check_scans(paths: Sequence, *, max_size_ratio: float = 5.0) -> list[ScanCheck]:
+    """Read every scan once and check it is usable for a population model.
+
+    A scan must be one closed surface, and its size (cube root of the enclosed
+    volume) within ``max_size_ratio`` of the population's median: a scan in
+    metres among scans in millimetres is 1000 times too small.
+
+    Returns
+    -------
+    list of ScanCheck
+        In the order of ``paths``.
+    """
+    from .surface import check_closed_surface, signed_volume
+
+    checks = []
+    for p in paths:
+        p = Path(p)
+        try:
+            mesh = read_mesh(p)
+            check_closed_surface(mesh, name=str(p), allow_degenerate=True)
+            size = abs(signed_volume(mesh.vertices, mesh.faces)) ** (1.0 / 3.0)
+            checks.append(ScanCheck(str(p), True, n_vertices=mesh.n_vertices, size=size))
+        except HortishapeError as exc:
+            checks.append(ScanCheck(str(p), False, error=str(exc)))
+    sizes = [c.size for c in checks if c.ok]
+    if sizes:
+        median = float(np.median(sizes))
+        for i, c in enumerate(checks):
+            if c.ok and not (median / max_size_ratio <= c.size <= median * max_size_ratio):
+                ratio = c.size / median
+                hint = " (in metres?)" if ratio < 0.01 else " (in micrometres?)" if ratio > 100 else ""
+                checks[i] = ScanCheck(
+                    c.path, False, n_vertices=c.n_vertices, size=c.size,
+                    error=f"{c.path}: its size is {ratio:.3g} times the population's median{hint}; "
+                          "all scans must be in millimetres",
+                )
+    return checks
+
+
+def choose_reference(checks: Sequence[ScanCheck]) -> str:
+    """The default reference: the usable scan whose size is nearest the median.
+
+    The paper picks a random instance; a typical-sized one deforms least on
+    average, which keeps correspondences more even across the population.
+    """
+    ok = [c for c in checks if c.ok]
+    if not ok:
+        raise HortishapeError("no usable scan to choose a reference from")
+    median = float(np.median([c.size for c in ok]))
+    return min(ok, key=lambda c: (abs(c.size - median), c.path)).path
+
+
+@dataclass(frozen=True)
+class BuildResult:
+    """What :func:`build_model` made.
+
+    Attributes
+    ----------
+    out_dir : Path
+    model_path : Path
+        ``out_dir/model.h5``.
+    reference : str
+        The scan used as the first pass's reference.
+    names : tuple of str
+        The instances in the model, in order.
+    skipped : tuple of (str, str)
+        ``(path, reason)`` of every scan left out.
+    first_pass, second_pass : tuple of InstanceResult
+    explained_variance : (k,) float64 ndarray
+        Variance of each mode, mm^2.
+    seconds : float
+    """
+
+    out_dir: Path
+    model_path: Path
+    reference: str
+    names: tuple
+    skipped: tuple
+    first_pass: tuple
+    second_pass: tuple
+    explained_variance: np.ndarray
+    seconds: float
+
+
+def _stage(progress_factory, total: int, desc: str) -> Progress | None:
+    return progress_factory(total, desc) if progress_factory else None
+
+
+def build_model(
+    input_dir,
+    out_dir,
+    *,
+    reference=None,
+    n_points: int = 30000,
+    n_modes: int | float | None = None,
+    n_jobs: int | None = None,
+    strict: bool = False,
+    config: RegistrationConfig | None = None,
+    scaling: bool = False,
+    progress: Callable[[int, str], Progress] | None = None,
+) -> BuildResult:
+    """Build a statistical shape model from a folder of scans (paper section 2.2.3).
+
+    Steps: read and check every scan (:func:`check_scans`); pick the reference
+    (``reference``, or the scan nearest the median size); resample it
+    uniformly to ``n_points`` vertices and register it to every scan; take the
+    mean of the registered surfaces (after generalized Procrustes) as a new,
+    unbiased template and register that to every scan again (the paper's
+    second pass, section 3.1); align the corresponded surfaces by generalized
+    Procrustes (rotation and translation; ``scaling`` optional); PCA (eqs. 9-12).
+
+    Writes to ``out_dir``:
+
+    - ``model.h5``: the model, in the Statismo v0.9 layout (readable by
+      Statismo and Scalismo) with hortishape's own group;
+    - ``registered/<stem>.ply``: each scan's corresponded surface in its own
+      coordinates (same vertex count, order and faces for all), with
+      ``<stem>.json`` logs;
+    - ``aligned/<stem>.ply``: the Procrustes-aligned surfaces;
+    - ``summary.json``: per-scan registration figures, skipped scans, the
+      model's variances;
+    - ``work/first-pass/``: the first pass (kept so an interrupted build resumes).
+
+    Every registration is written as soon as it is done; run the same build
+    again and finished registrations are not redone.
+
+    Parameters
+    ----------
+    input_dir : path
+        Folder of scan meshes (PLY, STL, OBJ, OFF, VTK, VTP), in mm.
+    out_dir : path
+    reference : path, optional
+        The first pass's reference scan (default: the scan nearest the median size).
+    n_points : int, default: 30000
+        Vertices of the resampled reference (the paper: 30,000 apple).
+    n_modes : int or float, optional
+        Modes kept: a number, or a fraction of the variance in (0, 1]. Default: all.
+    n_jobs : int, optional
+        Parallel registrations (default: all cores).
+    strict : bool, default: False
+        Stop at the first unusable scan instead of skipping it.
+    config : RegistrationConfig, optional
+        Default: the paper's.
+    scaling : bool, default: False
+        Also remove size in the Procrustes alignment (then size is not a mode).
+    progress : callable, optional
+        ``progress(total, description)`` returns a wrapper for an iterator
+        (e.g. a tqdm factory).
+
+    Returns
+    -------
+    BuildResult
+
+    Raises
+    ------
+    HortishapeError
+        If fewer than 3 scans are usable, or with ``strict`` at the first bad scan.
+    """
+    from .model import ShapeModel
+    from .procrustes import generalized_procrustes
+
+    start = time.perf_counter()
+    out = Path(out_dir)
+    files = find_meshes(input_dir)
+    checks = check_scans(files)
+    skipped = [(c.path, c.error) for c in checks if not c.ok]
+    if strict and skipped:
+        raise HortishapeError(skipped[0][1])
+    usable = [Path(c.path) for c in checks if c.ok]
+    if len(usable) < 3:
+        reasons = "; ".join(e for _, e in skipped[:3])
+        raise HortishapeError(
+            f"{input_dir}: {len(usable)} usable scans; a shape model needs at least 3"
+            + (f" ({reasons})" if reasons else "")
+        )
+    if reference is None:
+        ref_path = Path(choose_reference(checks))
+    else:
+        ref_path = Path(reference)
+    ref_mesh = read_mesh(ref_path)
+    cfg = config if config is not None else RegistrationConfig()
+
+    def run_pass(template: Template, folder: Path, desc: str, paths: list[Path]) -> list[InstanceResult]:
+        results = register_files(template, paths, folder, config=cfg, n_jobs=n_jobs, strict=strict,
+                                 progress=_stage(progress, len(paths), desc))
+        for r in results:
+            if not r.ok:
+                skipped.append((r.source, r.error))
+        return results
+
+    template = prepare_reference(ref_mesh, n_points)
+    first = run_pass(template, out / "work" / "first-pass", "registration 1/2", usable)
+    good = [Path(r.source) for r in first if r.ok]
+    _need_three(good, input_dir)
+
+    # the second pass: the mean of the first pass as an unbiased template
+    shapes = np.stack([read_mesh(out / "work" / "first-pass" / f"{p.stem}.ply").vertices for p in good])
+    mean = generalized_procrustes(shapes, scaling=scaling).mean
+    template2 = prepare_reference(Mesh(mean, template.mesh.faces), None)
+    second = run_pass(template2, out / "registered", "registration 2/2", good)
+    good = [Path(r.source) for r in second if r.ok]
+    _need_three(good, input_dir)
+
+    names = [p.stem for p in good]
+    shapes = np.stack([read_mesh(out / "registered" / f"{n}.ply").vertices for n in names])
+    gpa = generalized_procrustes(shapes, scaling=scaling)
+    (out / "aligned").mkdir(parents=True, exist_ok=True)
+    for name, aligned in zip(names, gpa.aligned):
+        write_mesh(out / "aligned" / f"{name}.ply", aligned, template2.mesh.faces)
+    model = ShapeModel(n_components=n_modes).fit(gpa.aligned, template2.mesh.faces, names=names)
+    model_path = out / "model.h5"
+    model.save(model_path)
+
+    seconds = time.perf_counter() - start
+    summary = {
+        "units": "mm",
+        "input_dir": str(input_dir),
+        "reference": str(ref_path),
+        "n_points": template.mesh.n_vertices,
+        "instances": names,
+        "skipped": [{"path": p, "reason": e} for p, e in skipped],
+        "first_pass": [asdict(r) for r in first],
+        "second_pass": [asdict(r) for r in second],
+        "procrustes": {"scaling": scaling, "iterations": int(gpa.n_iter)},
+        "model": {
+            "n_modes": int(model.n_components_),
+            "variances_mm2": model.explained_variance_.tolist(),
+            "explained_variance_ratio": model.explained_variance_ratio_.tolist(),
+        },
+        "seconds": seconds,
+    }
+    _atomic_text(out / "summary.json", json.dumps(_jsonable(summary), indent=1))
+    return BuildResult(out, model_path, str(ref_path), tuple(names), tuple(skipped), tuple(first),
+                       tuple(second), model.explained_variance_, seconds)
+
+
+def _jsonable(value):
+    """``value`` with NaN and infinity as ``null``: strict JSON for other tools."""
+    if isinstance(value, float):
+        return value if np.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    return value
+
+
+def _need_three(paths: Sequence, input_dir) -> None:
+    if len(paths) < 3:
+        raise HortishapeError(f"{input_dir}: only {len(paths)} scans registered; a shape model needs at least 3")
+
+
+# --------------------------------------------------------------------------
+# describing a new scan by the model
+# --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class ScanFit:
+    """Result of :func:`fit_scan`: a new scan described by a model (eq. 13).
+
+    Attributes
+    ----------
+    coefficients : (k,) float64 ndarray
+        Shape coefficients in standard deviations of each mode.
+    pose : (4, 4) float64 ndarray
+        Rigid transform C from the model's frame to the scan's.
+    reconstruction : (n, 3) float64 ndarray
+        ``C(x_bar + Phi b)`` in the scan's coordinates, mm.
+    mahalanobis : float
+        Mahalanobis distance of the shape, standard deviations.
+    residual_mean, residual_max : float
+        Distance of the reconstruction to the corresponded points, mm.
+    surface_mean, surface_max : float
+        Distance of the reconstruction's vertices to the scan's surface, mm.
+    registration : Registration
+        The registration of the model's mean to the scan.
+    """
+
+    coefficients: np.ndarray
+    pose: np.ndarray
+    reconstruction: np.ndarray
+    mahalanobis: float
+    residual_mean: float
+    residual_max: float
+    surface_mean: float
+    surface_max: float
+    registration: Registration
+
+
+def fit_scan(model, scan: Mesh, *, modes: int | None = None,
+             config: RegistrationConfig | None = None) -> ScanFit:
+    """Describe a new scan by a model: register its mean, then fit pose and shape.
+
+    The model's mean surface is registered to ``scan`` (RN-ICP-T), which gives
+    the scan's points in correspondence with the model; the rigid pose C and
+    the coefficients b of eq. 13 are then fitted to them by least squares.
+
+    Parameters
+    ----------
+    model : ShapeModel
+        A fitted model with faces.
+    scan : Mesh
+        The new scan, mm, any pose.
+    modes : int, optional
+        Modes to fit (default: all).
+    config : RegistrationConfig, optional
+
+    Returns
+    -------
+    ScanFit
+    """
+    from .model import fit_pose_and_shape
+    from .surface import closest_points
+
+    template = prepare_reference(model.to_mesh(model.mean_), None)
+    reg = register(template, scan, config)
+    fit = fit_pose_and_shape(model, reg.vertices, modes=modes)
+    d = closest_points(scan, fit.reconstruction).distances
+    return ScanFit(fit.coefficients, fit.pose, fit.reconstruction, float(fit.mahalanobis),
+                   float(fit.residual_mean), float(fit.residual_max), float(d.mean()), float(d.max()), reg)
