@@ -1,0 +1,1228 @@
+"""Statistical shape models: PCA of corresponded shapes (paper section 2.2.3, eqs. 9-13).
+
+:class:`ShapeModel` behaves like scikit-learn's ``PCA`` (arguments stored in
+``__init__``, all work in :meth:`~ShapeModel.fit`, fitted attributes ending
+in ``_``) and speaks scalismo's words (``instance``, ``project``, ``sample``,
+``truncate``). :func:`fit_pose_and_shape` fits eq. 13, ``y = C(x_bar + Phi b)``,
+to the corresponding points of a new shape.
+
+Coefficients are in standard deviations
+---------------------------------------
+Everywhere in this module (``transform``, ``inverse_transform``,
+``instance``, ``sample``, ``scores_``, ``ShapeFit.coefficients``) the shape
+coefficients are in units of each mode's standard deviation, as in scalismo
+and Statismo: coefficient ``c_i`` stands for the paper's ``b_i = c_i *
+sqrt(lambda_i)`` millimetres along the unit mode ``Phi_i``. So coefficients of
+the training population, and of samples of the model, are distributed as
+``N(0, I)``; ``c_i = 3`` is "+3 SD" (the paper's Figs. 7 and 8); the
+Mahalanobis distance is simply ``|c|``. (scikit-learn's ``transform`` returns
+the raw projections ``b``; multiply by ``sqrt(explained_variance_)`` to get them.)
+
+Flattened coordinates are interleaved per point, ``(x0, y0, z0, x1, ...)``,
+as the rows of the paper's matrix ``X`` and Statismo's vectors.
+
+Model files
+-----------
+:meth:`ShapeModel.save` writes an HDF5 file in the Statismo 0.9 layout that
+Statismo and scalismo read (``/version``, ``/representer``, ``/model``,
+``/modelinfo``; float32 as Statismo stores it), plus a ``/hortishape`` group
+with float64 copies and hortishape's metadata. :meth:`ShapeModel.load`
+reads both its own files and plain Statismo/scalismo files.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import secrets
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+
+from ._rng import RandomState, as_generator
+from .errors import HortishapeError, MeshError, NotFittedError
+from .mesh import Mesh, check_mesh
+from .procrustes import (
+    _apply,
+    _as_shapes,
+    _as_weights,
+    _fit_transforms,
+    generalized_procrustes,
+)
+
+__all__ = ["ShapeFit", "ShapeModel", "fit_pose_and_shape"]
+
+#: Shapes: an ``(N, n, 3)`` array (or ``(n, 3)`` where one shape is allowed), or meshes.
+Shapes = npt.ArrayLike | Mesh | Sequence[Mesh]
+
+# Eigenvalues of the Gram matrix below this fraction of the largest are
+# rounding noise (its absolute error is about N * eps * lambda_max).
+_RANK_RTOL = 1e-10
+# A mode whose cosine with uniform growth of the mean is below this gets its
+# sign from its largest entry instead (see ShapeModel.fit).
+_GROWTH_COS_MIN = 1e-6
+
+_FORMAT = "hortishape-shape-model"
+_FORMAT_VERSION = 1
+# Statismo 0.9 standard mesh representer (modules/VTK/src/vtkStandardMeshRepresenter.cxx):
+# the names "vtkPolyDataRepresenter" and "itkMeshRepresenter" are the legacy
+# (<= 0.8) representers that embed a VTK file instead of points and cells.
+_REPRESENTER_NAME = "vtkStandardMeshRepresenter"
+_REPRESENTER_VERSION = "1.0"
+_LEGACY_REPRESENTERS = ("vtkPolyDataRepresenter", "itkMeshRepresenter")
+
+
+def _hortishape_version() -> str:
+    from . import __version__
+
+    return __version__
+
+
+# --------------------------------------------------------------------------
+# The model
+# --------------------------------------------------------------------------
+
+
+class ShapeModel:
+    """A point distribution model: mean shape and principal modes (eqs. 9-12).
+
+    Parameters
+    ----------
+    n_components : int, float or None, default: None
+        Modes to keep. ``None``: every mode with non-zero variance (at most
+        ``N - 1`` for ``N`` training shapes). An int ``k >= 1``: the first
+        ``k``. A float in ``(0, 1]``: the fewest modes whose variances add up
+        to at least that fraction of the total variance (e.g. ``0.95``).
+    procrustes : bool, default: False
+        Rigidly align the training shapes with generalized Procrustes
+        (:func:`~hortishape.procrustes.generalized_procrustes`, no scaling)
+        before the PCA, and align new shapes onto ``mean_`` in
+        :meth:`transform` (and so in :meth:`project` and :meth:`mahalanobis`).
+        Leave it off when the shapes are already in a common pose (e.g. all
+        registered into the reference's frame).
+
+    Attributes
+    ----------
+    mean_ : (n, 3) float64 ndarray
+        Mean shape ``x_bar`` (eq. 9), mm.
+    components_ : (k, 3n) float64 ndarray
+        Orthonormal modes ``Phi`` as rows (eqs. 11-12), interleaved
+        ``(x0, y0, z0, x1, ...)``, by decreasing variance. Signs: see :meth:`fit`.
+    explained_variance_ : (k,) float64 ndarray
+        Variance ``lambda_i`` of each mode, mm^2, decreasing (eq. 11, with the
+        ``1 / (N - 1)`` of eq. 10).
+    explained_variance_ratio_ : (k,) float64 ndarray
+        ``lambda_i`` over the total variance of the training shapes.
+    singular_values_ : (k,) float64 ndarray
+        ``sqrt((N - 1) * lambda_i)``.
+    noise_variance_ : float
+        Variance per coordinate left outside the kept modes, mm^2:
+        ``(total - sum(lambda)) / (3n - k)`` (the probabilistic-PCA estimate;
+        0 when every mode is kept). Written as Statismo's ``noiseVariance``.
+    n_components_ : int
+        ``k``.
+    n_samples_ : int or None
+        ``N`` (None for a loaded Statismo file that does not say).
+    n_points_ : int
+        ``n``.
+    faces_ : (m, 3) int64 ndarray or None
+        Triangles of the shapes (from ``fit``'s ``faces`` or meshes).
+    names_ : tuple of str
+        Names of the training shapes (default ``shape_000``, ...).
+    scores_ : (N, k) float64 ndarray or None
+        Coefficients of the training shapes, in standard deviations.
+    procrustes_transforms_ : (N, 4, 4) float64 ndarray or None
+        With ``procrustes=True``: the transforms from each training shape to
+        its aligned pose.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> base = rng.normal(size=(200, 3)) * [40.0, 40.0, 42.0]
+    >>> shapes = base * rng.normal(1.0, 0.05, size=(20, 1, 1))  # size varies
+    >>> model = ShapeModel(n_components=0.99).fit(shapes)
+    >>> model.n_components_, model.components_.shape
+    (1, (1, 600))
+    >>> c = model.transform(shapes)  # coefficients in standard deviations
+    >>> round(float(c.std(ddof=1)), 6)
+    1.0
+    """
+
+    def __init__(self, n_components: int | float | None = None, *, procrustes: bool = False) -> None:
+        self.n_components = n_components
+        self.procrustes = procrustes
+
+    def __repr__(self) -> str:
+        args = []
+        if self.n_components is not None:
+            args.append(f"n_components={self.n_components!r}")
+        if self.procrustes:
+            args.append(f"procrustes={self.procrustes!r}")
+        return f"ShapeModel({', '.join(args)})"
+
+    # ------------------------------------------------------------------ fit
+
+    def fit(self, shapes: Shapes, faces: npt.ArrayLike | None = None, *,
+            names: Sequence[str] | None = None) -> "ShapeModel":
+        """Build the model from ``N >= 3`` corresponded shapes (eqs. 9-12).
+
+        The ``N x 3n`` matrix ``X`` of eq. 9 is centred, its ``N x N`` Gram
+        matrix ``D = X_hat X_hat^T / (N - 1)`` (eq. 10) is decomposed (eq. 11)
+        and the modes are ``Phi = X_hat^T U_D`` (eq. 12), normalised. The
+        ``3n x 3n`` covariance is never formed. One Rayleigh-Ritz step
+        (symmetric orthogonalisation of ``Phi`` and an SVD of the small ``N x
+        k`` matrix ``X_hat Phi``) then makes the modes orthonormal to rounding
+        error and the small variances accurate, which squaring the data in
+        eq. 10 alone would not.
+
+        Signs are deterministic: ``+`` is the direction in which the mode grows
+        the mean shape about its centroid (so mode 1 at +3 SD is the larger
+        fruit when mode 1 is size); a mode orthogonal to growth (cosine below
+        1e-6) has its largest-magnitude entry positive (scikit-learn's rule).
+
+        Parameters
+        ----------
+        shapes : (N, n, 3) array_like of float, or sequence of Mesh
+            Corresponded shapes, mm. Meshes must all have the same faces.
+        faces : (m, 3) array_like of int, optional
+            The shared triangles (needed to save a mesh model, render or write
+            meshes). Taken from the meshes when ``shapes`` are meshes.
+        names : sequence of str, optional
+            One name per shape (stored in the model file).
+
+        Returns
+        -------
+        ShapeModel
+            ``self``, fitted.
+
+        Raises
+        ------
+        MeshError
+            Fewer than 3 shapes, wrong array shape, shapes of different sizes,
+            NaN or infinite coordinates, bad faces, or shapes that do not vary.
+        ValueError
+            ``n_components`` or ``names`` unusable.
+        HortishapeError
+            ``n_components`` asks for more modes than the data have.
+        """
+        n_comp = _check_n_components(self.n_components)
+        x, mesh_faces = _as_shapes(shapes)
+        n_shapes, n_points = x.shape[:2]
+        if n_shapes < 3:
+            raise MeshError(f"a shape model needs at least 3 training shapes, got {n_shapes}")
+        the_faces = _resolve_faces(x[0], faces, mesh_faces)
+        the_names = _check_names(names, n_shapes)
+
+        transforms = None
+        if self.procrustes:
+            gpa = generalized_procrustes(x)
+            x, transforms = gpa.aligned, gpa.transforms
+
+        flat = x.reshape(n_shapes, -1)
+        mean = flat.mean(axis=0)  # eq. 9
+        xc = flat - mean
+        total = float(np.einsum("ij,ij->", xc, xc)) / (n_shapes - 1)
+        scale2 = float(np.einsum("i,i->", mean, mean)) / mean.size + 1.0
+        if total <= 1e-24 * scale2:
+            raise MeshError("the training shapes are all the same: there is no variation to model")
+        components, variances = _pca(xc)
+        if len(variances) == 0:  # pragma: no cover - total > 0 implies one mode
+            raise MeshError("the training shapes do not vary")
+        components = _flip_signs(components, mean.reshape(-1, 3))
+
+        rank = len(variances)
+        if n_comp is None:
+            k = rank
+        elif isinstance(n_comp, float):
+            ratio = np.cumsum(variances) / total
+            k = min(int(np.searchsorted(ratio, n_comp * (1 - 1e-12), side="left")) + 1, rank)
+        else:
+            if n_comp > rank:
+                raise HortishapeError(
+                    f"n_components={n_comp}, but the {n_shapes} training shapes have only {rank} "
+                    f"mode{'s' if rank != 1 else ''} of variation (at most N - 1 = {n_shapes - 1})"
+                )
+            k = n_comp
+
+        self._set_fitted(
+            mean=mean.reshape(n_points, 3),
+            components=components[:k],
+            variances=variances[:k],
+            total_variance=total,
+            n_samples=n_shapes,
+            faces=the_faces,
+            names=the_names,
+            scores=None,
+            procrustes_transforms=transforms,
+        )
+        self.scores_ = (xc @ self.components_.T) / np.sqrt(self.explained_variance_)
+        return self
+
+    def _set_fitted(self, *, mean, components, variances, total_variance, n_samples, faces, names, scores,
+                    procrustes_transforms, noise_variance=None) -> None:
+        k, d = components.shape
+        self.mean_ = np.ascontiguousarray(mean, dtype=np.float64)
+        self.components_ = np.ascontiguousarray(components, dtype=np.float64)
+        self.explained_variance_ = np.array(variances, dtype=np.float64)
+        self._total_variance = float(total_variance)
+        self.explained_variance_ratio_ = self.explained_variance_ / self._total_variance
+        self.n_components_ = int(k)
+        self.n_samples_ = None if n_samples is None else int(n_samples)
+        self.singular_values_ = (
+            np.sqrt(self.explained_variance_ * (self.n_samples_ - 1)) if self.n_samples_ else None
+        )
+        if noise_variance is None:
+            rest = max(self._total_variance - float(self.explained_variance_.sum()), 0.0)
+            noise_variance = rest / (d - k) if d > k else 0.0
+        self.noise_variance_ = float(noise_variance)
+        self.faces_ = None if faces is None else np.array(faces, dtype=np.int64)
+        self.names_ = tuple(names) if names is not None else None
+        self.scores_ = None if scores is None else np.array(scores, dtype=np.float64)
+        self.procrustes_transforms_ = (
+            None if procrustes_transforms is None else np.array(procrustes_transforms, dtype=np.float64)
+        )
+
+    # ---------------------------------------------------------- properties
+
+    @property
+    def n_points_(self) -> int:
+        """Number of points ``n`` of every shape."""
+        self._check_fitted()
+        return int(self.mean_.shape[0])
+
+    def _check_fitted(self) -> None:
+        if not hasattr(self, "components_"):
+            raise NotFittedError(
+                "this ShapeModel is not fitted yet: call fit(shapes) or ShapeModel.load(path) first"
+            )
+
+    def _shapes(self, shapes, name: str = "shapes") -> np.ndarray:
+        x, _ = _as_shapes(shapes, name=name, allow_single=True)
+        if x.shape[1] != self.n_points_:
+            raise MeshError(
+                f"{name} have {x.shape[1]} points, the model has {self.n_points_}: "
+                "shapes must be in correspondence with the model"
+            )
+        return x
+
+    def _coefficients(self, coefficients, *, name: str = "coefficients") -> np.ndarray:
+        """``(N, k')`` float64 coefficients, ``k' <= n_components_`` (1-D input: N = 1)."""
+        c = np.array(coefficients, dtype=np.float64)
+        if c.ndim == 1:
+            c = c[None]
+        if c.ndim != 2 or c.shape[1] == 0:
+            raise ValueError(f"{name} must have shape (N, k) or (k,), got {c.shape}")
+        if c.shape[1] > self.n_components_:
+            raise ValueError(f"{name} have {c.shape[1]} columns, the model has {self.n_components_} modes")
+        if not np.isfinite(c).all():
+            raise ValueError(f"{name} contain NaN or infinite values")
+        return c
+
+    # ------------------------------------------------------- transform etc.
+
+    def transform(self, shapes: Shapes) -> np.ndarray:
+        """Shape coefficients in standard deviations: ``Phi^T (x - x_bar) / sqrt(lambda)``.
+
+        With ``procrustes=True`` every shape is first rigidly aligned onto
+        ``mean_`` (least squares over all points).
+
+        Parameters
+        ----------
+        shapes : (N, n, 3) or (n, 3) array_like of float, Mesh or sequence of Mesh
+            Shapes in correspondence with the model (a single shape is ``N = 1``).
+
+        Returns
+        -------
+        (N, k) float64 ndarray
+            Coefficients ``c``; the paper's ``b = c * sqrt(explained_variance_)`` (eq. 13).
+
+        Examples
+        --------
+        >>> rng = np.random.default_rng(0)
+        >>> shapes = rng.normal(size=(6, 10, 3))
+        >>> model = ShapeModel().fit(shapes)
+        >>> bool(np.allclose(model.inverse_transform(model.transform(shapes)), shapes))
+        True
+        """
+        self._check_fitted()
+        x = self._shapes(shapes)
+        if self.procrustes:
+            w = np.full(x.shape[1], 1.0 / x.shape[1])
+            x = _apply(_fit_transforms(x, self.mean_, w, False), x)
+        b = (x.reshape(len(x), -1) - self.mean_.reshape(-1)) @ self.components_.T
+        return b / np.sqrt(self.explained_variance_)
+
+    def inverse_transform(self, coefficients: npt.ArrayLike) -> np.ndarray:
+        """Shapes from coefficients: ``x_bar + Phi (c * sqrt(lambda))`` (eq. 13 without ``C``).
+
+        Parameters
+        ----------
+        coefficients : (N, k') or (k',) array_like of float
+            Coefficients in standard deviations of the first ``k' <=
+            n_components_`` modes (the others are 0).
+
+        Returns
+        -------
+        (N, n, 3) float64 ndarray
+        """
+        self._check_fitted()
+        c = self._coefficients(coefficients)
+        k = c.shape[1]
+        b = c * np.sqrt(self.explained_variance_[:k])
+        flat = self.mean_.reshape(-1) + b @ self.components_[:k]
+        return flat.reshape(len(c), -1, 3)
+
+    def project(self, shapes: Shapes) -> np.ndarray:
+        """The closest model shapes: ``inverse_transform(transform(shapes))``.
+
+        Returns
+        -------
+        (N, n, 3) float64 ndarray
+            In the model's frame (with ``procrustes=True``: aligned onto
+            ``mean_``; use :func:`fit_pose_and_shape` to keep a shape's pose).
+        """
+        return self.inverse_transform(self.transform(shapes))
+
+    def mahalanobis(self, shapes: Shapes) -> np.ndarray:
+        """Mahalanobis distance of shapes from the mean within the model, ``|transform(shapes)|``.
+
+        Returns
+        -------
+        (N,) float64 ndarray
+            In standard deviations; the residual outside the model's modes is
+            not counted.
+        """
+        return np.linalg.norm(self.transform(shapes), axis=1)
+
+    def instance(self, coefficients: npt.ArrayLike) -> np.ndarray:
+        """One model shape from coefficients (scalismo's ``instance``).
+
+        Parameters
+        ----------
+        coefficients : (k',) array_like of float
+            Standard deviations along the first ``k' <= n_components_`` modes.
+
+        Returns
+        -------
+        (n, 3) float64 ndarray
+        """
+        self._check_fitted()
+        c = np.asarray(coefficients, dtype=np.float64)
+        if c.ndim != 1:
+            raise ValueError(f"coefficients of one instance must have shape (k,), got {c.shape}")
+        return self.inverse_transform(c)[0]
+
+    def mode_shapes(self, mode: int, *, sd: float = 3.0) -> tuple[np.ndarray, np.ndarray]:
+        """The mean moved ``-sd`` and ``+sd`` standard deviations along one mode (paper Fig. 7).
+
+        Parameters
+        ----------
+        mode : int
+            Index of the mode, from 0 (the paper's "mode 1").
+        sd : float, default: 3.0
+            Standard deviations.
+
+        Returns
+        -------
+        minus, plus : (n, 3) float64 ndarray
+        """
+        self._check_fitted()
+        if isinstance(mode, bool) or not isinstance(mode, (int, np.integer)) or not 0 <= mode < self.n_components_:
+            raise ValueError(f"mode must be an integer in [0, {self.n_components_ - 1}], got {mode!r}")
+        if not np.isfinite(sd):
+            raise ValueError(f"sd must be a finite number, got {sd!r}")
+        step = (sd * math.sqrt(self.explained_variance_[mode]) * self.components_[mode]).reshape(-1, 3)
+        return self.mean_ - step, self.mean_ + step
+
+    # --------------------------------------------------------------- sampling
+
+    def sample_coefficients(self, n: int, *, modes: int | None = 5, truncate: float | None = 3.0,
+                            random_state: RandomState = None) -> np.ndarray:
+        """Random coefficients: standard normal, truncated at ``+/- truncate`` (paper 3.2).
+
+        Each coefficient of the first ``modes`` modes is drawn independently
+        from the standard normal distribution restricted to ``[-truncate,
+        truncate]`` (exactly, by the inverse CDF); the other modes are 0.
+
+        Parameters
+        ----------
+        n : int
+            Number of samples.
+        modes : int or None, default: 5
+            Leading modes to vary (the paper uses 5); at most ``n_components_``
+            are used; None: all.
+        truncate : float or None, default: 3.0
+            Truncation in standard deviations; None: no truncation.
+        random_state : int, Generator, SeedSequence or None, default: None
+
+        Returns
+        -------
+        (n, n_components_) float64 ndarray
+        """
+        self._check_fitted()
+        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
+            raise ValueError(f"n must be a non-negative integer, got {n!r}")
+        if modes is None:
+            m = self.n_components_
+        elif isinstance(modes, bool) or not isinstance(modes, (int, np.integer)) or modes < 1:
+            raise ValueError(f"modes must be a positive integer or None, got {modes!r}")
+        else:
+            m = min(int(modes), self.n_components_)
+        rng = as_generator(random_state)
+        out = np.zeros((int(n), self.n_components_))
+        if truncate is None or truncate == math.inf:
+            out[:, :m] = rng.standard_normal((int(n), m))
+            return out
+        if not (isinstance(truncate, (int, float, np.floating, np.integer)) and truncate > 0):
+            raise ValueError(f"truncate must be a positive number of standard deviations or None, got {truncate!r}")
+        from scipy.special import ndtr, ndtri
+
+        lo = float(ndtr(-float(truncate)))
+        u = rng.uniform(lo, 1.0 - lo, size=(int(n), m))
+        out[:, :m] = np.clip(ndtri(u), -truncate, truncate)
+        return out
+
+    def sample(self, n: int, *, modes: int | None = 5, truncate: float | None = 3.0,
+               random_state: RandomState = None) -> np.ndarray:
+        """Random shapes of the model (paper section 3.2, Fig. 8).
+
+        Coefficients from :meth:`sample_coefficients` (Gaussian truncated at
+        ``+/- truncate`` SD on the first ``modes`` modes), turned into shapes
+        by :meth:`inverse_transform`.
+
+        Parameters
+        ----------
+        n : int
+            Number of shapes.
+        modes : int or None, default: 5
+        truncate : float or None, default: 3.0
+        random_state : int, Generator, SeedSequence or None, default: None
+
+        Returns
+        -------
+        (n, n_points_, 3) float64 ndarray
+
+        Examples
+        --------
+        >>> rng = np.random.default_rng(0)
+        >>> model = ShapeModel().fit(rng.normal(size=(8, 30, 3)))
+        >>> model.sample(4, random_state=1).shape
+        (4, 30, 3)
+        """
+        c = self.sample_coefficients(n, modes=modes, truncate=truncate, random_state=random_state)
+        if len(c) == 0:
+            return np.empty((0, self.n_points_, 3))
+        return self.inverse_transform(c)
+
+    # ------------------------------------------------------------ new models
+
+    def truncate(self, n_components: int) -> "ShapeModel":
+        """A new model with only the first ``n_components`` modes (scalismo's ``truncate``).
+
+        The total variance is kept, so ``explained_variance_ratio_`` of the
+        kept modes is unchanged and ``noise_variance_`` grows.
+
+        Returns
+        -------
+        ShapeModel
+        """
+        self._check_fitted()
+        k = n_components
+        if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 1 <= k <= self.n_components_:
+            raise ValueError(f"n_components must be an integer in [1, {self.n_components_}], got {k!r}")
+        new = ShapeModel(n_components=int(k), procrustes=self.procrustes)
+        new._set_fitted(
+            mean=self.mean_.copy(),
+            components=self.components_[:k].copy(),
+            variances=self.explained_variance_[:k].copy(),
+            total_variance=self._total_variance,
+            n_samples=self.n_samples_,
+            faces=self.faces_,
+            names=self.names_,
+            scores=None if self.scores_ is None else self.scores_[:, :k],
+            procrustes_transforms=self.procrustes_transforms_,
+        )
+        return new
+
+    def to_mesh(self, vertices: npt.ArrayLike) -> Mesh:
+        """A :class:`Mesh` of ``vertices (n, 3)`` (e.g. an instance) with the model's faces.
+
+        Raises
+        ------
+        MeshError
+            If the model has no faces or ``vertices`` has the wrong shape.
+        """
+        self._check_fitted()
+        if self.faces_ is None:
+            raise MeshError("the model has no faces (fit it with faces= or meshes to get surfaces)")
+        v = np.asarray(vertices, dtype=np.float64)
+        if v.shape != self.mean_.shape:
+            raise MeshError(f"vertices must have shape {self.mean_.shape}, got {v.shape}")
+        return Mesh(v, self.faces_)
+
+    # ------------------------------------------------------------------ files
+
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write the model to an HDF5 file (Statismo 0.9 layout plus ``/hortishape``), atomically.
+
+        Layout (``n`` points, ``m`` triangles, ``k`` modes, ``N`` training shapes):
+
+        * ``/version/majorVersion = 0``, ``/version/minorVersion = 9`` (int32 scalars)
+        * ``/representer``: string attributes ``name = "vtkStandardMeshRepresenter"``,
+          ``version = "1.0"``, ``datasetType = "POLYGON_MESH"`` (``"POINT_SET"``
+          without faces); ``points`` float32 ``(3, n)`` (the mean shape, the
+          model's reference), ``cells`` int32 ``(3, m)`` (Statismo writes
+          uint32 and reads any integer type; scalismo reads only int32), empty
+          groups ``pointData`` and ``cellData``
+        * ``/model``: ``mean`` float32 ``(3n,)`` (absolute, interleaved
+          coordinates), ``pcaBasis`` float32 ``(3n, k)`` (orthonormal columns),
+          ``pcaVariance`` float32 ``(k,)``, ``noiseVariance`` float32 scalar
+        * ``/modelinfo``: ``build-time`` (string), ``scores`` float32 ``(k, N)``
+          (column ``j``: coefficients of training shape ``j``, in SD);
+          ``modelBuilder-0/{builderName, buildTime, dataInfo/URI_<j>, parameters/*}``
+        * ``/hortishape``: float64 ``mean (n, 3)``, ``components (k, 3n)``,
+          ``explained_variance``, ``total_variance``, ``noise_variance``,
+          ``scores (N, k)``, int64 ``faces (m, 3)``, ``names``,
+          ``procrustes_transforms (N, 4, 4)``; attributes ``format``,
+          ``format_version``, ``hortishape_version``, ``units = "mm"``,
+          ``procrustes``, ``n_components`` (JSON), ``build_time``.
+
+        Strings in the Statismo part are fixed-length, null-terminated ASCII,
+        as Statismo's ``HDF5Utils`` writes them.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            Target file (conventionally ``model.h5``); its folder must exist.
+
+        Returns
+        -------
+        pathlib.Path
+            ``path``.
+
+        Raises
+        ------
+        NotFittedError
+            If the model is not fitted.
+        HortishapeError
+            If the file cannot be written.
+        """
+        self._check_fitted()
+        import h5py
+
+        target = Path(path)
+        if target.is_dir():
+            raise HortishapeError(f"{target}: is a directory")
+        if not target.parent.is_dir():
+            raise HortishapeError(f"{target}: cannot write, the folder {target.parent} does not exist")
+        tmp = target.parent / f".{target.name}.{secrets.token_hex(4)}.tmp"
+        try:
+            with h5py.File(tmp, "w") as f:
+                self._write_h5(f)
+            os.replace(tmp, target)
+        except BaseException as exc:
+            try:
+                tmp.unlink()
+            except OSError:
+                pass
+            if isinstance(exc, OSError):
+                raise HortishapeError(f"{target}: cannot write ({exc.strerror or exc})") from None
+            raise
+        return target
+
+    def _write_h5(self, f) -> None:
+        import h5py
+
+        build_time = time.asctime()
+        k, d = self.components_.shape
+        names = self.names_ or tuple(f"shape_{i:03d}" for i in range(self.n_samples_ or 0))
+
+        version = f.create_group("version")
+        version.create_dataset("majorVersion", data=np.int32(0))
+        version.create_dataset("minorVersion", data=np.int32(9))
+
+        rep = f.create_group("representer")
+        _string_attribute(rep, "name", _REPRESENTER_NAME)
+        _string_attribute(rep, "version", _REPRESENTER_VERSION)
+        _string_attribute(rep, "datasetType", "POINT_SET" if self.faces_ is None else "POLYGON_MESH")
+        rep.create_dataset("points", data=np.ascontiguousarray(self.mean_.T, dtype=np.float32))
+        if self.faces_ is not None:
+            # int32, not Statismo's own uint32: Statismo converts any integer type on
+            # reading (H5::PredType::NATIVE_UINT), while scalismo's jhdf reader returns
+            # uint32 as Java long[][] and fails to cast it to the Int arrays it expects.
+            rep.create_dataset("cells", data=np.ascontiguousarray(self.faces_.T, dtype=np.int32))
+        rep.create_group("pointData")
+        rep.create_group("cellData")
+
+        model = f.create_group("model")
+        model.create_dataset("mean", data=self.mean_.reshape(-1).astype(np.float32))
+        model.create_dataset("pcaBasis", data=np.ascontiguousarray(self.components_.T, dtype=np.float32))
+        model.create_dataset("pcaVariance", data=self.explained_variance_.astype(np.float32))
+        model.create_dataset("noiseVariance", data=np.float32(self.noise_variance_))
+
+        info = f.create_group("modelinfo")
+        _string_dataset(info, "build-time", build_time)
+        if self.scores_ is not None:
+            info.create_dataset("scores", data=np.ascontiguousarray(self.scores_.T, dtype=np.float32))
+        else:  # Statismo's marker for "no scores"
+            info.create_dataset("scores", data=np.zeros((1, 1), dtype=np.float32))
+        builder = info.create_group("modelBuilder-0")
+        _string_dataset(builder, "builderName", "hortishape.ShapeModel")
+        _string_dataset(builder, "buildTime", build_time)
+        data_info = builder.create_group("dataInfo")
+        for i, name in enumerate(names):
+            _string_dataset(data_info, f"URI_{i}", name)
+        params = builder.create_group("parameters")
+        _string_dataset(params, "NoiseVariance", repr(self.noise_variance_))
+        _string_dataset(params, "NumberOfComponents", str(self.n_components_))
+        _string_dataset(params, "Procrustes", "true" if self.procrustes else "false")
+        _string_dataset(params, "Units", "mm")
+
+        h = f.create_group("hortishape")
+        h.attrs["format"] = _FORMAT
+        h.attrs["format_version"] = np.int32(_FORMAT_VERSION)
+        h.attrs["hortishape_version"] = _hortishape_version()
+        h.attrs["units"] = "mm"
+        h.attrs["procrustes"] = bool(self.procrustes)
+        h.attrs["n_components"] = json.dumps(self.n_components)
+        h.attrs["build_time"] = build_time
+        if self.n_samples_ is not None:
+            h.attrs["n_samples"] = np.int64(self.n_samples_)
+        h.create_dataset("mean", data=self.mean_)
+        h.create_dataset("components", data=self.components_)
+        h.create_dataset("explained_variance", data=self.explained_variance_)
+        h.create_dataset("total_variance", data=np.float64(self._total_variance))
+        h.create_dataset("noise_variance", data=np.float64(self.noise_variance_))
+        if self.scores_ is not None:
+            h.create_dataset("scores", data=self.scores_)
+        if self.faces_ is not None:
+            h.create_dataset("faces", data=self.faces_)
+        if self.names_ is not None:
+            h.create_dataset("names", data=list(self.names_), dtype=h5py.string_dtype())
+        if self.procrustes_transforms_ is not None:
+            h.create_dataset("procrustes_transforms", data=self.procrustes_transforms_)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> "ShapeModel":
+        """Read a model file written by :meth:`save`, Statismo or scalismo.
+
+        Files with a ``/hortishape`` group are read from its float64 copies;
+        plain Statismo files (0.9 or 0.8 layout, standard mesh or point-set
+        representer) from the float32 datasets: ``/model/mean``, ``pcaBasis``,
+        ``pcaVariance``, ``noiseVariance``, the representer's ``cells`` as
+        faces and ``/modelinfo/scores`` as ``scores_``. Such files do not record
+        the total variance of the training shapes; it is taken as
+        ``sum(pcaVariance) + noiseVariance * (3n - k)``, on which
+        ``explained_variance_ratio_`` is then based.
+
+        Returns
+        -------
+        ShapeModel
+            Fitted.
+
+        Raises
+        ------
+        HortishapeError
+            If the file is missing, not HDF5, or not a usable model file.
+
+        Examples
+        --------
+        >>> import tempfile
+        >>> rng = np.random.default_rng(0)
+        >>> model = ShapeModel().fit(rng.normal(size=(5, 12, 3)))
+        >>> path = model.save(tempfile.mkdtemp() + "/model.h5")
+        >>> bool(np.array_equal(ShapeModel.load(path).components_, model.components_))
+        True
+        """
+        import h5py
+
+        p = Path(path)
+        if not p.exists():
+            raise HortishapeError(f"{p}: no such file")
+        if p.is_dir():
+            raise HortishapeError(f"{p}: is a directory, not a model file")
+        try:
+            f = h5py.File(p, "r")
+        except OSError as exc:
+            raise HortishapeError(f"{p}: not an HDF5 model file ({exc})") from None
+        try:
+            with f:
+                if "hortishape" in f:
+                    return cls._from_hortishape(f, p)
+                return cls._from_statismo(f, p)
+        except (KeyError, ValueError, TypeError, OSError) as exc:
+            raise HortishapeError(f"{p}: unusable model file ({exc})") from None
+
+    @classmethod
+    def _from_hortishape(cls, f, path: Path) -> "ShapeModel":
+        h = f["hortishape"]
+        fmt = _attr_str(h.attrs.get("format", ""))
+        if fmt != _FORMAT:
+            raise HortishapeError(f"{path}: /hortishape is not a hortishape model (format {fmt!r})")
+        fv = int(h.attrs.get("format_version", 0))
+        if fv > _FORMAT_VERSION:
+            raise HortishapeError(
+                f"{path}: model format version {fv} is newer than this hortishape reads ({_FORMAT_VERSION}); "
+                "update hortishape"
+            )
+        for key in ("mean", "components", "explained_variance", "total_variance"):
+            if key not in h:
+                raise HortishapeError(f"{path}: /hortishape/{key} is missing")
+        mean = h["mean"][()]
+        components = h["components"][()]
+        variances = h["explained_variance"][()]
+        _check_loaded(path, mean, components, variances)
+        n_components = json.loads(_attr_str(h.attrs.get("n_components", "null")))
+        model = cls(n_components=n_components, procrustes=bool(h.attrs.get("procrustes", False)))
+        names = [_attr_str(s) for s in h["names"][()]] if "names" in h else None
+        model._set_fitted(
+            mean=mean,
+            components=components,
+            variances=variances,
+            total_variance=float(h["total_variance"][()]),
+            n_samples=int(h.attrs["n_samples"]) if "n_samples" in h.attrs else None,
+            faces=h["faces"][()] if "faces" in h else None,
+            names=names,
+            scores=h["scores"][()] if "scores" in h else None,
+            procrustes_transforms=h["procrustes_transforms"][()] if "procrustes_transforms" in h else None,
+            noise_variance=float(h["noise_variance"][()]) if "noise_variance" in h else None,
+        )
+        return model
+
+    @classmethod
+    def _from_statismo(cls, f, path: Path) -> "ShapeModel":
+        missing = [k for k in ("representer", "model/mean", "model/pcaBasis", "model/pcaVariance") if k not in f]
+        if missing:
+            raise HortishapeError(
+                f"{path}: not a Statismo model file (missing {', '.join('/' + m for m in missing)})"
+            )
+        rep = f["representer"]
+        rep_name = _attr_str(rep.attrs.get("name", ""))
+        if rep_name in _LEGACY_REPRESENTERS:
+            raise HortishapeError(
+                f"{path}: a Statismo file with the legacy representer {rep_name!r} (an embedded VTK file) "
+                "is not supported; convert it with a current Statismo or scalismo first"
+            )
+        if "points" not in rep:
+            raise HortishapeError(f"{path}: /representer/points is missing")
+        dataset_type = _attr_str(rep.attrs.get("datasetType", "POLYGON_MESH"))
+        if dataset_type not in ("POLYGON_MESH", "POINT_SET"):
+            raise HortishapeError(f"{path}: representer datasetType {dataset_type!r} is not a surface or point set")
+        if "version" in f:
+            major = int(f["version/majorVersion"][()])
+            minor = int(f["version/minorVersion"][()])
+        else:
+            major, minor = 0, 8
+        if (major, minor) not in ((0, 8), (0, 9)) and major != 1:
+            raise HortishapeError(f"{path}: unsupported Statismo file version {major}.{minor}")
+
+        mean = np.asarray(f["model/mean"][()], dtype=np.float64).reshape(-1)
+        basis = np.asarray(f["model/pcaBasis"][()], dtype=np.float64)
+        variances = np.asarray(f["model/pcaVariance"][()], dtype=np.float64).reshape(-1)
+        if basis.ndim != 2 or basis.shape != (mean.size, variances.size):
+            raise HortishapeError(
+                f"{path}: /model/pcaBasis has shape {basis.shape}, expected ({mean.size}, {variances.size})"
+            )
+        if (major, minor) == (0, 8):  # old files store U * sqrt(lambda)
+            sd = np.sqrt(np.where(variances > 0, variances, 1.0))
+            basis = basis / sd
+        if mean.size % 3:
+            raise HortishapeError(f"{path}: /model/mean has {mean.size} values, not 3 per point")
+        noise = float(np.asarray(f["model/noiseVariance"][()]).reshape(-1)[0]) if "model/noiseVariance" in f else 0.0
+        # keep the modes with positive variance, ordered by decreasing variance
+        n_file_modes = variances.size
+        keep = np.flatnonzero(variances > 0)
+        order = keep[np.argsort(-variances[keep], kind="stable")]
+        variances, components = variances[order], basis[:, order].T
+        mean_points = mean.reshape(-1, 3)
+        _check_loaded(path, mean_points, components, variances)
+
+        faces = None
+        if dataset_type == "POLYGON_MESH" and "cells" in rep:
+            cells = np.asarray(rep["cells"][()])
+            if cells.ndim != 2 or cells.shape[0] != 3:
+                raise HortishapeError(f"{path}: /representer/cells has shape {cells.shape}: not triangles (3, m)")
+            faces = cells.T.astype(np.int64)
+            try:
+                check_mesh(mean_points, faces, name=str(path))
+            except MeshError as exc:
+                raise HortishapeError(str(exc)) from None
+
+        scores = None
+        n_samples = None
+        names = None
+        if "modelinfo/scores" in f:
+            s = np.asarray(f["modelinfo/scores"][()], dtype=np.float64)
+            if s.ndim == 2 and s.shape[0] == n_file_modes and not (s.shape == (1, 1) and s[0, 0] == 0.0):
+                scores = s[order].T
+                n_samples = s.shape[1]
+        if "modelinfo/modelBuilder-0/dataInfo" in f:
+            di = f["modelinfo/modelBuilder-0/dataInfo"]
+            uris = sorted((k for k in di if k.startswith("URI_")), key=lambda k: int(k[4:]) if k[4:].isdigit() else 0)
+            if uris:
+                names = [_attr_str(di[k][()]) for k in uris]
+                if n_samples is None:
+                    n_samples = len(names)
+                elif len(names) != n_samples:
+                    names = None
+        d = mean.size
+        k = len(variances)
+        model = cls(n_components=k, procrustes=False)
+        model._set_fitted(
+            mean=mean_points,
+            components=components,
+            variances=variances,
+            total_variance=float(variances.sum()) + noise * (d - k),
+            n_samples=n_samples,
+            faces=faces,
+            names=names,
+            scores=scores,
+            procrustes_transforms=None,
+            noise_variance=noise,
+        )
+        return model
+
+
+# --------------------------------------------------------------------------
+# eq. 13: pose and shape of a new instance
+# --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class ShapeFit:
+    """Result of :func:`fit_pose_and_shape` (eq. 13, ``y = C(x_bar + Phi b)``).
+
+    Attributes
+    ----------
+    coefficients : (k,) float64 ndarray
+        Shape coefficients in standard deviations (0 beyond the fitted modes);
+        the paper's ``b = coefficients * sqrt(model.explained_variance_)``.
+    pose : (4, 4) float64 ndarray
+        Rigid transform ``C`` from the model's frame to the points' frame.
+    reconstruction : (n, 3) float64 ndarray
+        ``C(x_bar + Phi b)`` in the points' frame (mm).
+    residual_mean, residual_max : float
+        Mean and largest distance between ``reconstruction`` and the points, mm.
+    mahalanobis : float
+        ``|coefficients|``, standard deviations.
+    n_iter : int
+        Levenberg-Marquardt iterations done (0 when the first alternation fits exactly).
+    converged : bool
+    """
+
+    coefficients: np.ndarray
+    pose: np.ndarray
+    reconstruction: np.ndarray
+    residual_mean: float
+    residual_max: float
+    mahalanobis: float
+    n_iter: int
+    converged: bool
+
+
+def fit_pose_and_shape(
+    model: ShapeModel,
+    points: npt.ArrayLike | Mesh,
+    *,
+    modes: int | None = None,
+    weights: npt.ArrayLike | None = None,
+    max_iter: int = 100,
+    tol: float = 1e-10,
+) -> ShapeFit:
+    """Fit the model's pose and shape to the corresponding points of a new shape (eq. 13).
+
+    Minimises ``sum_j w_j |C(x_bar + Phi b)_j - y_j|^2`` over a rigid ``C``
+    and the coefficients ``b`` of the first ``modes`` modes. It starts with
+    one alternation of the two exact sub-problems (``C`` by Kabsch for the
+    mean, then ``b`` by least squares after moving ``y`` into the model's
+    frame with ``C^-1``, then ``C`` again), and then solves for pose and
+    shape jointly by Levenberg-Marquardt (rotation increments about the
+    current centroid). Alternation alone stalls when a mode resembles a
+    rigid motion (a model built without Procrustes from shapes in different
+    poses); the joint steps do not.
+
+    Parameters
+    ----------
+    model : ShapeModel
+        A fitted model.
+    points : (n, 3) array_like of float or Mesh
+        The new shape's points, in correspondence with the model's (e.g. a
+        registered reference), in any rigid pose, mm.
+    modes : int, optional
+        Leading modes to fit (default: all of the model's; 0: pose only).
+    weights : (n,) array_like of float, optional
+        Non-negative point weights (default: all equal).
+    max_iter : int, default: 100
+        Maximum Levenberg-Marquardt iterations.
+    tol : float, default: 1e-10
+        Stop when an iteration lowers the weighted mean squared residual by
+        less than this fraction.
+
+    Returns
+    -------
+    ShapeFit
+
+    Raises
+    ------
+    NotFittedError
+        If ``model`` is not fitted.
+    MeshError
+        If ``points`` is not ``(n, 3)`` with the model's ``n`` or holds NaN.
+
+    Examples
+    --------
+    >>> from hortishape.align import apply_transform, rigid_transform, rotation_about
+    >>> rng = np.random.default_rng(0)
+    >>> model = ShapeModel().fit(rng.normal(size=(10, 40, 3)) + [0.0, 0.0, 5.0])
+    >>> truth = model.instance([1.0, -0.5, 0.3])
+    >>> pose = rigid_transform(rotation_about([1, 2, 3], 0.8), [10.0, -4.0, 2.0])
+    >>> fit = fit_pose_and_shape(model, apply_transform(pose, truth))
+    >>> bool(np.allclose(fit.coefficients[:3], [1.0, -0.5, 0.3], atol=1e-6)), fit.residual_max < 1e-6
+    (True, True)
+    """
+    from .align import rotation_about
+
+    if not isinstance(model, ShapeModel):
+        raise TypeError(f"model must be a ShapeModel, got {type(model).__name__}")
+    model._check_fitted()
+    y = model._shapes(points, name="points")
+    if len(y) != 1:
+        raise MeshError(f"points must be one shape (n, 3), got {len(y)} shapes")
+    y = y[0]
+    n = len(y)
+    if modes is None:
+        m = model.n_components_
+    elif isinstance(modes, bool) or not isinstance(modes, (int, np.integer)) or not 0 <= modes <= model.n_components_:
+        raise ValueError(f"modes must be an integer in [0, {model.n_components_}] or None, got {modes!r}")
+    else:
+        m = int(modes)
+    if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 0:
+        raise ValueError(f"max_iter must be a non-negative integer, got {max_iter!r}")
+    if not (np.isfinite(tol) and tol >= 0):
+        raise ValueError(f"tol must be a non-negative number, got {tol!r}")
+    w = _as_weights(weights, n)
+    sw = np.sqrt(w)
+    mean = model.mean_
+    phi = model.components_[:m].reshape(m, n, 3)
+    size2 = float(w @ ((y - w @ y) ** 2).sum(axis=1))
+    tiny = 1e-26 * max(size2, float(w @ (y**2).sum(axis=1)), 1e-300)
+
+    def kabsch(src: np.ndarray) -> np.ndarray:
+        return _fit_transforms(src[None], y, w, False)[0]
+
+    def shape_of(b: np.ndarray) -> np.ndarray:
+        return mean + np.einsum("k,knd->nd", b, phi) if m else mean
+
+    def error(pose: np.ndarray, shape: np.ndarray) -> float:
+        p = shape @ pose[:3, :3].T + pose[:3, 3]
+        return float(w @ ((p - y) ** 2).sum(axis=1))
+
+    # one alternation: pose of the mean, shape in the model's frame, pose again
+    pose = kabsch(mean)
+    b = np.zeros(m)
+    if m:
+        y_model = (y - pose[:3, 3]) @ pose[:3, :3]
+        if weights is None:
+            b = np.einsum("knd,nd->k", phi, y_model - mean)
+        else:
+            a = (phi * sw[None, :, None]).reshape(m, -1)
+            b = np.linalg.lstsq(a.T, ((y_model - mean) * sw[:, None]).reshape(-1), rcond=None)[0]
+        pose = kabsch(shape_of(b))
+    err = error(pose, shape_of(b))
+
+    # Levenberg-Marquardt on (rotation increment, translation, b)
+    lam = 1e-3
+    converged = err <= tiny
+    n_iter = 0
+    eye = np.eye(3)
+    while not converged and n_iter < max_iter:
+        n_iter += 1
+        r, t = pose[:3, :3], pose[:3, 3]
+        shape = shape_of(b)
+        p = shape @ r.T + t
+        c = w @ p
+        q = p - c
+        jac = np.empty((n, 3, 6 + m))
+        jac[:, 0, 0:3] = np.column_stack([np.zeros(n), q[:, 2], -q[:, 1]])  # -[q]x
+        jac[:, 1, 0:3] = np.column_stack([-q[:, 2], np.zeros(n), q[:, 0]])
+        jac[:, 2, 0:3] = np.column_stack([q[:, 1], -q[:, 0], np.zeros(n)])
+        jac[:, :, 3:6] = eye
+        if m:
+            jac[:, :, 6:] = np.einsum("de,kne->ndk", r, phi)
+        a = (jac * sw[:, None, None]).reshape(3 * n, 6 + m)
+        res = ((p - y) * sw[:, None]).reshape(-1)
+        jtj = a.T @ a
+        g = a.T @ res
+        diag = np.diag(jtj).copy()
+        diag[diag <= 0] = 1.0
+        improved = False
+        for _ in range(30):
+            try:
+                step = -np.linalg.solve(jtj + lam * np.diag(diag), g)
+            except np.linalg.LinAlgError:
+                lam *= 10.0
+                continue
+            omega, dt, db = step[:3], step[3:6], step[6:]
+            angle = float(np.linalg.norm(omega))
+            rot = rotation_about(omega, angle) if angle > 0 else eye
+            new_pose = np.eye(4)
+            new_pose[:3, :3] = rot @ r
+            new_pose[:3, 3] = rot @ (t - c) + c + dt
+            new_b = b + db
+            new_err = error(new_pose, shape_of(new_b))
+            if new_err < err:
+                improved = True
+                break
+            lam *= 10.0
+        if not improved:
+            converged = True  # no descent step left: a minimum to working precision
+            break
+        decrease = err - new_err
+        pose, b, err = new_pose, new_b, new_err
+        lam = max(lam / 10.0, 1e-12)
+        if err <= tiny or decrease <= tol * (err + decrease):
+            converged = True
+
+    shape = shape_of(b)
+    rec = shape @ pose[:3, :3].T + pose[:3, 3]
+    dist = np.linalg.norm(rec - y, axis=1)
+    coefficients = np.zeros(model.n_components_)
+    coefficients[:m] = b / np.sqrt(model.explained_variance_[:m])
+    return ShapeFit(
+        coefficients=coefficients,
+        pose=pose,
+        reconstruction=rec,
+        residual_mean=float(dist.mean()),
+        residual_max=float(dist.max()),
+        mahalanobis=float(np.linalg.norm(coefficients)),
+        n_iter=n_iter,
+        converged=bool(converged),
+    )
+
+
+# --------------------------------------------------------------------------
+# helpers
+# --------------------------------------------------------------------------
+
+
+def _check_n_components(n_components):
+    if n_components is None:
+        return None
+    if isinstance(n_components, bool):
+        raise ValueError(f"n_components must be an int, a float in (0, 1] or None, got {n_components!r}")
+    if isinstance(n_components, (int, np.integer)):
+        if n_components < 1:
+            raise ValueError(f"n_components must be at least 1, got {n_components}")
+        return int(n_components)
+    if isinstance(n_components, (float, np.floating)):
+        if not 0.0 < n_components <= 1.0:
+            raise ValueError(
+                f"a float n_components is a fraction of the variance in (0, 1], got {n_components}"
+            )
+        return float(n_components)
+    raise ValueError(f"n_components must be an int, a float in (0, 1] or None, got {n_components!r}")
+
+
+def _resolve_faces(vertices: np.ndarray, faces, mesh_faces) -> np.ndarray | None:
+    if faces is None:
+        return mesh_faces
+    _, f = check_mesh(vertices, faces, name="faces")
+    if mesh_faces is not None and not np.array_equal(f, mesh_faces):
+        raise MeshError("faces differ from the faces of the meshes given as shapes")
+    return f
+
+
+def _check_names(names, n: int) -> tuple[str, ...]:
+    if names is None:
+        return tuple(f"shape_{i:03d}" for i in range(n))
+    if isinstance(names, str) or not isinstance(names, Sequence):
+        raise ValueError("names must be a sequence of strings, one per shape")
+    if len(names) != n:
+        raise ValueError(f"got {len(names)} names for {n} shapes")
+    return tuple(str(s) for s in names)
+
+
+def _pca(xc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Orthonormal modes ``(r, d)`` and variances ``(r,)`` of centred rows ``xc (N, d)`` (eqs. 10-12)."""
+    n = xc.shape[0]
+    gram = xc @ xc.T / (n - 1)  # eq. 10, N x N
+    lam, u = np.linalg.eigh(gram)  # eq. 11 (symmetric: SVD == eigendecomposition)
+    lam, u = lam[::-1], u[:, ::-1]
+    if lam[0] <= 0:
+        return np.zeros((0, xc.shape[1])), np.zeros(0)
+    rank = min(int(np.count_nonzero(lam > _RANK_RTOL * lam[0])), n - 1)
+    phi = xc.T @ (u[:, :rank] / np.sqrt((n - 1) * lam[:rank]))  # eq. 12, normalised columns
+    # Rayleigh-Ritz refinement inside span(phi): an orthonormal basis by
+    # symmetric orthogonalisation (phi is already nearly orthonormal, so this
+    # is stable and, unlike a Householder QR of the tall matrix, all BLAS-3),
+    # then the exact SVD of the data restricted to it (N x rank, cheap).
+    for _ in range(3):
+        g = phi.T @ phi
+        if np.abs(g - np.eye(rank)).max() < 1e-13:
+            break
+        w, v = np.linalg.eigh(g)
+        phi = phi @ ((v / np.sqrt(w)) @ v.T)
+    _, s, vt = np.linalg.svd(xc @ phi, full_matrices=False)
+    lam = s**2 / (n - 1)
+    keep = lam > _RANK_RTOL * lam[0]
+    components = (phi @ vt.T).T[keep]
+    return components, lam[keep]
+
+
+def _flip_signs(components: np.ndarray, mean: np.ndarray) -> np.ndarray:
+    """Deterministic signs: + grows the mean about its centroid, else largest entry positive."""
+    growth = (mean - mean.mean(axis=0)).reshape(-1)
+    norm = np.linalg.norm(growth)
+    cos = components @ growth / norm if norm > 0 else np.zeros(len(components))
+    big = components[np.arange(len(components)), np.argmax(np.abs(components), axis=1)]
+    sign = np.where(np.abs(cos) >= _GROWTH_COS_MIN, np.sign(cos), np.sign(big))
+    sign[sign == 0] = 1.0
+    return components * sign[:, None]
+
+
+def _check_loaded(path: Path, mean, components, variances) -> None:
+    mean = np.asarray(mean)
+    if mean.ndim != 2 or mean.shape[1] != 3 or mean.shape[0] == 0:
+        raise HortishapeError(f"{path}: the mean shape has shape {mean.shape}, expected (n, 3)")
+    if components.ndim != 2 or components.shape[1] != mean.size or components.shape[0] != len(variances):
+        raise HortishapeError(
+            f"{path}: the modes have shape {components.shape}, expected ({len(variances)}, {mean.size})"
+        )
+    if len(variances) == 0:
+        raise HortishapeError(f"{path}: the model has no modes with positive variance")
+    if not (np.isfinite(mean).all() and np.isfinite(components).all() and np.isfinite(variances).all()):
+        raise HortishapeError(f"{path}: the model holds NaN or infinite values")
+
+
+def _attr_str(value) -> str:
+    if isinstance(value, (bytes, np.bytes_)):
+        return value.decode("utf-8", "replace").rstrip("\x00")
+    if isinstance(value, np.ndarray) and value.shape == ():
+        return _attr_str(value[()])
+    return str(value)
+
+
+def _fixed_string(text: str):
+    """A null-terminated fixed-length ASCII string type and value, as Statismo's HDF5Utils writes."""
+    import h5py
+
+    raw = text.encode("utf-8")
+    tid = h5py.h5t.C_S1.copy()
+    tid.set_size(len(raw) + 1)
+    tid.set_strpad(h5py.h5t.STR_NULLTERM)
+    return np.array(raw, dtype=f"S{len(raw) + 1}"), h5py.Datatype(tid)
+
+
+def _string_attribute(obj, name: str, text: str) -> None:
+    value, dtype = _fixed_string(text)
+    obj.attrs.create(name, value, dtype=dtype)
+
+
+def _string_dataset(group, name: str, text: str) -> None:
+    value, dtype = _fixed_string(text)
+    group.create_dataset(name, data=value, dtype=dtype)
