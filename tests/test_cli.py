@@ -77,3 +77,20 @@ def test_unwritable_output_is_one_clear_line(tmp_path):
     assert result.returncode == 1
     assert result.stderr.startswith("hortishape: error:")
     assert "Traceback" not in result.stderr
+
+
+def test_register_command(tmp_path, capsys):
+    scans = tmp_path / "scans"
+    assert main(["synth", "pear", "2", str(scans), "--seed", "2", "--vertices", "10000", "--jobs", "1"]) == 0
+    broken = tmp_path / "broken.obj"
+    broken.write_text("v 0 0 0\n")
+    out = tmp_path / "reg"
+    code = main(["register", str(scans / "pear_000.ply"), str(scans / "pear_001.ply"), str(broken),
+                 "--out", str(out), "--points", "2000", "--iterations", "10", "--jobs", "1"])
+    captured = capsys.readouterr()
+    assert code == 0  # one scan registered; the broken one reported and skipped
+    assert "registered 1 of 2 scans" in captured.out
+    assert "broken.obj" in captured.err
+    assert (out / "pear_001.ply").is_file() and (out / "pear_001.json").is_file()
+    # only bad targets: non-zero exit
+    assert main(["register", str(scans / "pear_000.ply"), str(broken), "--out", str(out)]) == 1

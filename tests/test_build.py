@@ -1,0 +1,137 @@
+"""Building a model from a folder: two passes, Procrustes, PCA, files, bad scans, resume."""
+
+import json
+
+import h5py
+import numpy as np
+import pytest
+
+from hortishape import synth
+from hortishape.cli import main
+from hortishape.errors import HortishapeError
+from hortishape.io import read_mesh, write_mesh
+from hortishape.model import ShapeModel
+from hortishape.pipeline import build_model, check_scans, choose_reference, fit_scan
+from hortishape.register import RegistrationConfig
+
+CONFIG = RegistrationConfig(n_iterations=12)
+
+
+@pytest.fixture(scope="module")
+def scans(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("scans")
+    synth.write_population("apple", 5, folder, random_state=11, pose="upright", n_vertices=10000, n_jobs=1)
+    # one corrupt file among them: a PLY cut short
+    data = (folder / "apple_004.ply").read_bytes()
+    (folder / "apple_004.ply").write_bytes(data[: len(data) // 3])
+    return folder
+
+
+@pytest.fixture(scope="module")
+def built(scans, tmp_path_factory):
+    out = tmp_path_factory.mktemp("model")
+    return build_model(scans, out, n_points=2000, config=CONFIG, n_jobs=2)
+
+
+def test_builds_from_the_good_scans_and_reports_the_bad_one(built, scans):
+    assert built.names == ("apple_000", "apple_001", "apple_002", "apple_003")
+    assert len(built.skipped) == 1 and "apple_004.ply" in built.skipped[0][0]
+    summary = json.loads((built.out_dir / "summary.json").read_text())
+    assert summary["instances"] == list(built.names)
+    assert summary["skipped"][0]["path"].endswith("apple_004.ply")
+    assert len(summary["second_pass"]) == 4
+    assert summary["model"]["n_modes"] == 3  # N - 1 modes
+    assert summary["units"] == "mm"
+
+
+def test_writes_corresponded_and_aligned_surfaces(built, scans):
+    faces = None
+    for name in built.names:
+        reg = read_mesh(built.out_dir / "registered" / f"{name}.ply")
+        aligned = read_mesh(built.out_dir / "aligned" / f"{name}.ply")
+        faces = reg.faces if faces is None else faces
+        np.testing.assert_array_equal(reg.faces, faces)  # same faces for all
+        np.testing.assert_array_equal(aligned.faces, faces)
+        # registered surfaces are in each scan's own coordinates
+        scan = read_mesh(scans / f"{name}.ply")
+        assert np.linalg.norm(reg.vertices.mean(0) - scan.vertices.mean(0)) < 2.0
+
+
+def test_model_file_holds_the_model(built):
+    model = ShapeModel.load(built.model_path)
+    assert model.n_samples_ == 4
+    np.testing.assert_allclose(model.explained_variance_, built.explained_variance, rtol=1e-6)
+    with h5py.File(built.model_path) as f:
+        assert f["version/majorVersion"][()] == 0 and f["version/minorVersion"][()] == 9
+        assert f["model/pcaBasis"].shape[1] == 3
+
+
+def test_second_pass_uses_the_mean_as_template(built):
+    first = json.loads((built.out_dir / "work" / "first-pass" / "apple_000.json").read_text())
+    second = json.loads((built.out_dir / "registered" / "apple_000.json").read_text())
+    assert first["fingerprint"] != second["fingerprint"]
+
+
+def test_rebuild_resumes_finished_registrations(built, scans):
+    again = build_model(scans, built.out_dir, n_points=2000, config=CONFIG, n_jobs=2)
+    assert all(r.resumed for r in again.first_pass if r.ok)
+    assert all(r.resumed for r in again.second_pass if r.ok)
+    np.testing.assert_allclose(again.explained_variance, built.explained_variance)
+
+
+def test_strict_stops_at_the_bad_scan(scans, tmp_path):
+    with pytest.raises(HortishapeError, match="apple_004.ply"):
+        build_model(scans, tmp_path, n_points=2000, config=CONFIG, strict=True)
+
+
+def test_too_few_scans(tmp_path, scans):
+    for name in ("apple_000", "apple_001"):
+        (tmp_path / f"{name}.ply").write_bytes((scans / f"{name}.ply").read_bytes())
+    with pytest.raises(HortishapeError, match="at least 3"):
+        build_model(tmp_path, tmp_path / "out", n_points=2000, config=CONFIG)
+
+
+def test_wrong_units_and_reference_choice(scans, tmp_path):
+    paths = [scans / f"apple_00{i}.ply" for i in range(4)]
+    m = read_mesh(paths[0])
+    metres = write_mesh(tmp_path / "metres.ply", m.vertices / 1000.0, m.faces)
+    checks = check_scans([*paths, metres])
+    assert [c.ok for c in checks] == [True, True, True, True, False]
+    assert "metres" in checks[-1].error and "metres.ply" in checks[-1].error
+    sizes = [c.size for c in checks[:4]]
+    median = np.median(sizes)
+    chosen = choose_reference(checks)
+    assert abs(sizes[[str(p) for p in paths].index(chosen)] - median) == min(abs(s - median) for s in sizes)
+
+
+def test_fit_scan_describes_a_model_instance(built, scans):
+    model = ShapeModel.load(built.model_path)
+    scan = read_mesh(scans / "apple_001.ply")
+    fit = fit_scan(model, scan, config=CONFIG)
+    assert fit.reconstruction.shape == (model.n_points_, 3)
+    assert fit.surface_mean < 1.0  # a training shape is described closely
+    assert fit.mahalanobis < 3.0
+
+
+def test_cli_build_sample_modes_fit(built, scans, tmp_path, capsys):
+    out = tmp_path / "m"
+    assert main(["build", str(scans), "--out", str(out), "--points", "2000", "--iterations", "12",
+                 "--modes", "2"]) == 0
+    printed = capsys.readouterr().out
+    assert "apple_004" in printed and "model: 4 instances, 2 modes" in printed
+    model_path = out / "model.h5"
+    assert main(["sample", str(model_path), "3", "--out", str(tmp_path / "s"), "--seed", "1"]) == 0
+    assert sorted(p.name for p in (tmp_path / "s").iterdir()) == [
+        "sample_000.ply", "sample_001.ply", "sample_002.ply", "samples.png"]
+    assert main(["modes", str(model_path), "--out", str(tmp_path / "modes"), "--modes", "2"]) == 0
+    assert (tmp_path / "modes" / "modes.png").is_file() and (tmp_path / "modes" / "mode2_plus3sd.ply").is_file()
+    assert main(["fit", str(model_path), str(scans / "apple_002.ply"), "--out", str(tmp_path / "fit.ply"),
+                 "--json", str(tmp_path / "fit.json"), "--iterations", "12"]) == 0
+    figures = json.loads((tmp_path / "fit.json").read_text())
+    assert len(figures["coefficients_sd"]) == 2 and figures["surface_mean_mm"] < 1.5
+    assert read_mesh(tmp_path / "fit.ply").n_vertices == 2000
+
+
+def test_cli_build_of_a_missing_folder_is_one_line(tmp_path, capsys):
+    assert main(["build", str(tmp_path / "nope"), "--out", str(tmp_path / "o")]) == 1
+    assert "not a folder" in capsys.readouterr().err
