@@ -20,6 +20,13 @@ How an instance is made
    with the scanner axes and surfaced by marching cubes, so the triangulation
    looks like a CT surface and not like the canonical shape's.
 
+The canonical frame is anatomical: ``z`` runs from the blossom end to the
+stalk, and ``x`` points to the side every instance leans, bends and bulges to
+(its stalk's bend, the fuller cheek of an apple, the largest lobe of a pepper,
+the curve of a zucchini, pear neck or banana), each by a random amount. So the
+shape itself fixes the turn about the stalk axis, as it must for a
+correspondence to be measurable.
+
 Because ``psi`` (scanner to canonical) is exact, every vertex knows its
 canonical coordinates: the same canonical point is the same anatomical place
 on every instance. :func:`true_correspondence` carries canonical points to any
@@ -163,8 +170,12 @@ class _Canonical:
 
 
 def _stalk_path(rng: np.random.Generator, base, length: float, bend: float, n: int = 4):
-    """Points along a gently bent stalk from ``base`` upwards."""
-    az = rng.uniform(-math.pi, math.pi)
+    """Points along a gently bent stalk from ``base`` upwards.
+
+    The stalk bends towards +x (give or take 20 degrees): the canonical frame
+    is anatomical, its x axis the side the fruit leans and its stalk bends to.
+    """
+    az = rng.normal(0.0, math.radians(20.0))
     t = np.linspace(0.0, 1.0, n)
     off = bend * t**2
     return np.column_stack(
@@ -184,14 +195,16 @@ def _cavity_floor(shape_parts: Callable[[np.ndarray], np.ndarray], z_hi: float, 
 
 def _apple(rng: np.random.Generator) -> _Canonical:
     ribs = rng.uniform(0.004, 0.02)
-    rib_phase = rng.uniform(0, 2 * math.pi / 5)
+    cheek = rng.uniform(0.02, 0.05)  # the +x cheek is the fuller one
     top_r = rng.uniform(19.0, 24.0)
     top_depth = rng.uniform(10.0, 14.0)
     bot_r = rng.uniform(8.0, 11.0)
     bot_depth = rng.uniform(4.0, 6.5)
 
     def body(c):
-        mod = ribs * np.cos(5 * _azimuth(c) + rib_phase) * np.clip((10.0 - c[:, 2]) / 50.0, 0.0, 1.0)
+        az = _azimuth(c)
+        mod = ribs * np.cos(5 * az) * np.clip((10.0 - c[:, 2]) / 50.0, 0.0, 1.0)
+        mod = mod + cheek * np.cos(az) * np.clip((c[:, 2] + 20.0) / 50.0, 0.0, 1.0)
         d = _round_cone(_revolution(c, mod), (0.0, -10.0), (0.0, 4.0), 31.0, 39.0)
         d = _smax(d, -_sphere(c, (0, 0, 43.0 + top_r - top_depth), top_r), 9.0)
         return _smax(d, -_sphere(c, (0, 0, -41.0 - bot_r + bot_depth), bot_r), 4.0)
@@ -230,6 +243,7 @@ def _apple(rng: np.random.Generator) -> _Canonical:
 def _pepper(rng: np.random.Generator) -> _Canonical:
     lobes = int(rng.choice([3, 4]))
     lobe_depth = rng.uniform(0.05, 0.10)
+    big_lobe = rng.uniform(0.03, 0.06)  # the lobe on +x is the largest
     blockiness = rng.uniform(2.6, 3.4)
     r0, hz = 34.0, 40.0
     top_r, top_depth = rng.uniform(11.0, 15.0), rng.uniform(8.0, 12.0)
@@ -239,7 +253,8 @@ def _pepper(rng: np.random.Generator) -> _Canonical:
         z = c[:, 2]
         # lobe valleys run top to bottom and deepen towards the blossom end
         weight = 0.6 + 0.4 * np.clip(-z / hz, 0.0, 1.0)
-        mod = lobe_depth * weight * np.cos(lobes * _azimuth(c))
+        az = _azimuth(c)
+        mod = lobe_depth * weight * np.cos(lobes * az) + big_lobe * np.cos(az)
         rho = np.hypot(c[:, 0], c[:, 1]) / (1.0 + mod)
         n = blockiness
         d = r0 * ((rho / r0) ** n + (np.abs(z) / hz) ** n) ** (1.0 / n) - r0
@@ -277,7 +292,7 @@ def _pepper(rng: np.random.Generator) -> _Canonical:
 def _zucchini(rng: np.random.Generator) -> _Canonical:
     ribs = rng.uniform(0.005, 0.02)
     n_ribs = int(rng.choice([5, 6, 8]))
-    club = rng.uniform(-3.0, 4.0)  # blossom end thicker (club-shaped) or not
+    club = rng.uniform(1.5, 5.0)  # the blossom end is the thicker one
     neck = rng.uniform(24.0, 29.0)
     # the blossom end stays at z = -142 whatever the club: only the width changes
     centres = np.array([[0.0, -107.0 + club], [0.0, 20.0], [0.0, 112.0]])
@@ -757,10 +772,10 @@ def make_instance(
 
     target = _sample_dimensions(spec, rng)
     taper = float(np.clip(rng.normal(0.0, spec.taper_sd), -2.5 * spec.taper_sd, 2.5 * spec.taper_sd))
-    lean = float(rng.normal(0.0, spec.lean_sd)) if spec.lean_sd else 0.0
-    side = math.copysign(1.0, rng.uniform(-1, 1))
+    lean = abs(float(rng.normal(0.0, spec.lean_sd))) if spec.lean_sd else 0.0  # towards +x
+    # bends curve the body's ends towards +x, like the lean and the stalk
     sagitta = max(float(rng.normal(*spec.bend_mm)), 0.0) if spec.bend_mm[0] > 0 else 0.0
-    scale, curvature = _fit_size(c_verts[body], taper, half_height, lean, target, sagitta * side,
+    scale, curvature = _fit_size(c_verts[body], taper, half_height, lean, target, sagitta,
                                  width_from_bend=spec.width_from_bend)
     pose_m = _random_pose(rng, pose)
     deform = Deformation(taper, half_height, lean, scale, curvature, pose_m)
