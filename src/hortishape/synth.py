@@ -183,6 +183,30 @@ def _stalk_path(rng: np.random.Generator, base, length: float, bend: float, n: i
     )
 
 
+def _calyx(ring: float, z: float, radius: float, phase: float = 0.0):
+    """Five sepals: small spheres on a ring about the axis at height ``z``."""
+    angles = np.linspace(0, 2 * math.pi, 6)[:5] + phase
+    sepals = np.column_stack([ring * np.cos(angles), ring * np.sin(angles), np.full(5, z)])
+
+    def calyx(c):
+        return np.min(np.stack([_sphere(c, s, radius) for s in sepals]), axis=0)
+
+    return calyx
+
+
+def _end_rays(path: np.ndarray, bottom_origin: float, *, tip_back: float = 0.0) -> dict:
+    """Landmark rays: along the stalk's last segment, and down the axis at the bottom.
+
+    ``tip_back`` starts the stalk ray that fraction of the last segment
+    before its end, inside the stalk.
+    """
+    direction = path[-1] - path[-2]
+    return {
+        "stalk_tip": (path[-1] - direction * tip_back, direction / np.linalg.norm(direction)),
+        "bottom": (np.array([0.0, 0.0, bottom_origin]), np.array([0.0, 0.0, -1.0])),
+    }
+
+
 def _cavity_floor(shape_parts: Callable[[np.ndarray], np.ndarray], z_hi: float, z_lo: float) -> float:
     """Height where the axis first enters the shape going down from ``z_hi``."""
     z = np.linspace(z_hi, z_lo, 4001)
@@ -211,9 +235,7 @@ def _apple(rng: np.random.Generator) -> _Canonical:
 
     z_top = _cavity_floor(body, 60.0, 0.0)
     z_bot = -_cavity_floor(lambda c: body(c * np.array([1, 1, -1])), 60.0, 0.0)
-    sepals = np.array(
-        [[3.2 * math.cos(a), 3.2 * math.sin(a), z_bot + 1.0] for a in np.linspace(0, 2 * math.pi, 6)[:5] + rng.uniform(0, 1)]
-    )
+    calyx = _calyx(3.2, z_bot + 1.0, 1.6, phase=rng.uniform(0, 1))
     length = rng.uniform(14.0, 22.0)
     path = _stalk_path(rng, (0.0, 0.0, z_top - 2.5), length + 2.5, rng.uniform(1.0, 4.0))
     radii = np.linspace(1.7, 1.35, len(path))
@@ -222,20 +244,13 @@ def _apple(rng: np.random.Generator) -> _Canonical:
         d = _chain(c, path, radii)
         return np.minimum(d, _sphere(c, path[-1], 1.75))
 
-    def calyx(c):
-        return np.min(np.stack([_sphere(c, s, 1.6) for s in sepals]), axis=0)
-
     def combine(v):
         return _smin(_smin(v["body"], v["stalk"], 1.5), v["calyx"], 1.0)
 
-    tip_dir = path[-1] - path[-2]
     return _Canonical(
         parts={"body": body, "stalk": stalk, "calyx": calyx},
         combine=combine,
-        landmark_rays={
-            "stalk_tip": (path[-1], tip_dir / np.linalg.norm(tip_dir)),
-            "bottom": (np.array([0.0, 0.0, z_bot + 8.0]), np.array([0.0, 0.0, -1.0])),
-        },
+        landmark_rays=_end_rays(path, z_bot + 8.0),
         body_parts=("body", "calyx"),
     )
 
@@ -277,14 +292,10 @@ def _pepper(rng: np.random.Generator) -> _Canonical:
         return _smin(_smin(v["body"], v["calyx"], 2.0), v["stalk"], 2.0)
 
     z_bot = -_cavity_floor(lambda c: body(c * np.array([1, 1, -1])), 60.0, 0.0)
-    tip_dir = path[-1] - path[-2]
     return _Canonical(
         parts={"body": body, "calyx": calyx, "stalk": stalk},
         combine=combine,
-        landmark_rays={
-            "stalk_tip": (path[-1] - tip_dir * 0.1, tip_dir / np.linalg.norm(tip_dir)),
-            "bottom": (np.array([0.0, 0.0, z_bot + 8.0]), np.array([0.0, 0.0, -1.0])),
-        },
+        landmark_rays=_end_rays(path, z_bot + 8.0, tip_back=0.1),
         body_parts=("body", "calyx"),
     )
 
@@ -313,14 +324,10 @@ def _zucchini(rng: np.random.Generator) -> _Canonical:
     def combine(v):
         return _smin(v["body"], v["stalk"], 5.0)
 
-    tip_dir = path[-1] - path[-2]
     return _Canonical(
         parts={"body": body, "stalk": stalk},
         combine=combine,
-        landmark_rays={
-            "stalk_tip": (path[-1] - tip_dir * 0.2, tip_dir / np.linalg.norm(tip_dir)),
-            "bottom": (np.array([0.0, 0.0, -120.0]), np.array([0.0, 0.0, -1.0])),
-        },
+        landmark_rays=_end_rays(path, -120.0, tip_back=0.2),
         body_parts=("body",),
     )
 
@@ -345,24 +352,15 @@ def _pear(rng: np.random.Generator) -> _Canonical:
         return np.minimum(_chain(c, path, radii_s), _sphere(c, path[-1], 1.6))
 
     z_bot = -_cavity_floor(lambda c: body(c * np.array([1, 1, -1])), 70.0, 0.0)
-    sepals = np.array(
-        [[2.2 * math.cos(a), 2.2 * math.sin(a), z_bot + 0.6] for a in np.linspace(0, 2 * math.pi, 6)[:5]]
-    )
-
-    def calyx(c):
-        return np.min(np.stack([_sphere(c, s, 1.3) for s in sepals]), axis=0)
+    calyx = _calyx(2.2, z_bot + 0.6, 1.3)
 
     def combine(v):
         return _smin(_smin(v["body"], v["stalk"], 2.5), v["calyx"], 0.8)
 
-    tip_dir = path[-1] - path[-2]
     return _Canonical(
         parts={"body": body, "stalk": stalk, "calyx": calyx},
         combine=combine,
-        landmark_rays={
-            "stalk_tip": (path[-1], tip_dir / np.linalg.norm(tip_dir)),
-            "bottom": (np.array([0.0, 0.0, z_bot + 8.0]), np.array([0.0, 0.0, -1.0])),
-        },
+        landmark_rays=_end_rays(path, z_bot + 8.0),
         body_parts=("body", "calyx"),
     )
 
