@@ -114,7 +114,7 @@ def _peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def run_class(product, pose, files, n_baseline):
+def run_class(product, pose, files, n_baseline, config=None):
     """Worker: prepare the reference, register every target, measure (separate process)."""
     warnings.simplefilter("ignore")
     from hortishape.align import apply_transform
@@ -136,7 +136,7 @@ def run_class(product, pose, files, n_baseline):
     for k, fn in enumerate(files[1:]):
         tgt = _load(fn)
         t0 = time.perf_counter()
-        reg = register(template, tgt["mesh"], RegistrationConfig())
+        reg = register(template, tgt["mesh"], RegistrationConfig(**(config or {})))
         sec = time.perf_counter() - t0
         r_true = tgt["pose"][:3, :3] @ ref["pose"][:3, :3].T
         ax = np.degrees(np.arccos(np.clip((reg.transform[:3, :3] @ ref["pose"][:3, 2]) @ tgt["pose"][:3, 2], -1, 1)))
@@ -197,7 +197,18 @@ def main(argv=None):
     ap.add_argument("--baseline-poses", nargs="+", default=["upright"], help="poses with a baseline run")
     ap.add_argument("--cache", default=os.environ.get("HORTISHAPE_BENCH_CACHE", "/tmp/hortishape-bench"))
     ap.add_argument("--json", help="write all figures to this file")
+    ap.add_argument(
+        "--config", nargs="*", default=[], metavar="KEY=VALUE",
+        help="RegistrationConfig options (values parsed as JSON, else strings), e.g. affine=none",
+    )
     args = ap.parse_args(argv)
+    config = {}
+    for kv in args.config:
+        k, v = kv.split("=", 1)
+        try:
+            config[k] = json.loads(v)
+        except json.JSONDecodeError:
+            config[k] = v
     cache = Path(args.cache)
     cache.mkdir(parents=True, exist_ok=True)
     results = []
@@ -207,7 +218,7 @@ def main(argv=None):
             # a fresh process per class: its peak RSS is the registration's
             with ProcessPoolExecutor(1, mp_context=get_context("spawn")) as pool:
                 nb = args.baseline if pose in args.baseline_poses else 0
-                res = pool.submit(run_class, product, pose, [str(f) for f in files], nb).result()
+                res = pool.submit(run_class, product, pose, [str(f) for f in files], nb, config).result()
             results.append(res)
             print(summarise(res), flush=True)
     if args.json:

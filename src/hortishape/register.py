@@ -9,13 +9,19 @@ One call of :func:`register` does:
    rotation between the two sets of axes (24, see
    :func:`hortishape.align.candidate_alignments`) is tried with a short, stiff
    elastic registration of a very coarse reference (800 vertices); the one
-   with the lowest residual is kept and its rigid transform refined by
+   with the lowest residual is kept (optionally, ``twists``, the winner is
+   tried again turned about its stalk axis in equal steps); its rigid
+   transform is then refined by
    point-to-plane ICP (see ``orientation`` in :class:`RegistrationConfig`).
-   Known limitation: the twist about a fruit's (near-)symmetry axis is not
-   determined by the geometry (round apples, 3- or 4-fold pepper lobes).
+   Optionally (``affine="init"``) a globally affine ICP follows.
+   Known limitation: the twist about a fruit's (near-)symmetry axis is only
+   weakly determined by the geometry (a cheek 2-5 % fuller on one side of an
+   apple, the largest of 3-4 pepper lobes), and the residual of the search
+   often cannot tell the right twist from one 90 degrees off.
 2. **RN-ICP-T iterations**: normal-ray correspondences with the three filters
-   (:mod:`hortishape.correspond`), a least-squares rigid step on the kept
-   pairs, and the translation-only elastic step of eq. 8,
+   (:mod:`hortishape.correspond`; the crossing filter (c) on the fine level
+   only), a least-squares rigid (or, see ``affine``, affine) step on the
+   kept pairs, and the translation-only elastic step of eq. 8,
    ``(beta^2 M^T M + W) X = W (T - S)`` with ``M`` the edge-incidence matrix
    and ``W`` the 0/1 weights, so that vertices without a correspondence move
    with their neighbours. ``beta`` decreases linearly from 50 to 1 over 30
@@ -65,7 +71,7 @@ from typing import Callable, Sequence
 import numpy as np
 import scipy.sparse as sp
 
-from .align import apply_transform, candidate_alignments, rigid_fit, rigid_transform, rotation_about
+from .align import apply_transform, candidate_alignments, principal_axes, rigid_fit, rigid_transform, rotation_about
 from .correspond import TargetSurface, find_correspondences, prepare_target
 from .errors import ConvergenceWarning, MeshError
 from .mesh import Mesh
@@ -91,8 +97,14 @@ __all__ = [
 
 #: Iterations run on the coarse level while beta (rescaled to the coarse
 #: edge length) is at least this: the displacement field is then smooth over
-#: more than ~2 coarse edges and barycentric interpolation loses nothing.
-COARSE_MIN_BETA = 2.0
+#: at least about a coarse edge and barycentric interpolation loses little
+#: (measured: 2.0 gave the same errors and cost two more fine iterations).
+COARSE_MIN_BETA = 1.0
+
+#: Ridge of the affine initialization, relative to the mean diagonal of its
+#: normal equations: damps the directions the point-to-plane residual barely
+#: sees (shear and twist of a round fruit), which normal rays cannot undo later.
+AFFINE_RIDGE = 0.05
 
 
 @dataclass(frozen=True)
@@ -125,8 +137,35 @@ class RegistrationConfig:
         ``initial_transform`` puts it).
     search_iterations : int, default: 6
         Iterations of each orientation candidate's coarse registration.
+    twists : int, default: 0
+        After the principal-axis candidates, the best one is also tried
+        turned about its stalk axis (the principal axis whose variance
+        stands apart) in this many equal steps (0: not at all). Off by
+        default: with 12 it fixed one apple's twist (15 -> 9 degrees) but
+        broke another's (9 -> 52) and a pepper's (20 -> 102) in
+        ``benchmarks/registration.py`` (4 targets x 2 poses x 5 classes):
+        the search residual does not tell twists apart reliably.
     rigid_steps : bool, default: True
-        The rigid least-squares step in every iteration.
+        The global least-squares step (rigid or affine, see ``affine``) in
+        every iteration.
+    affine : {"none", "init", "stiff", "all"}, default: "none"
+        A globally affine step (paper, section 1: "an initializing globally
+        affine step is added. Therefore, using only translation of the
+        vertices is sufficient"). ``"init"``: after the orientation search,
+        a two-sided point-to-plane affine ICP of the undeformed coarse level
+        (:func:`_affine_initialize`); ``"stiff"``: the global step of the
+        search and of the coarse-level iterations is an affine least-squares
+        fit of the kept pairs instead of a rigid one; ``"all"``: in every
+        iteration; ``"none"``: rigid steps only. Affine fits that would
+        reflect or squash the surface (a singular value outside [1/3, 3])
+        fall back to rigid. The default is ``"none"`` because it measured
+        best overall (``benchmarks/registration.py``, 3 random-pose targets
+        per class): ``"init"`` lowered the apples' dense error (median 1.8 ->
+        1.4 mm) but doubled their stalk-tip error and raised the pears',
+        stretched a bent zucchini the wrong way, and moved the synthetic
+        normal-deformation test off its truth by 0.27 mm (tangential motion
+        that normal rays cannot undo); ``"stiff"`` doubled the apples' dense
+        error.
     final_beta : float or None, default: 0.1
         Stiffness of the closing step that lands matched vertices on the
         target (``None``: no closing step).
@@ -145,7 +184,9 @@ class RegistrationConfig:
     max_iterations: int = 50
     orientation: str = "search"
     search_iterations: int = 6
+    twists: int = 0
     rigid_steps: bool = True
+    affine: str = "none"
     final_beta: float | None = 0.1
     multiresolution: bool = True
 
@@ -162,6 +203,10 @@ class RegistrationConfig:
             raise ValueError("max_iterations must be at least n_iterations")
         if self.orientation not in ("search", "pca", "none"):
             raise ValueError(f"orientation must be 'search', 'pca' or 'none', got {self.orientation!r}")
+        if self.affine not in ("init", "stiff", "all", "none"):
+            raise ValueError(f"affine must be 'init', 'stiff', 'all' or 'none', got {self.affine!r}")
+        if self.twists < 0:
+            raise ValueError(f"twists must be >= 0, got {self.twists}")
         if self.final_beta is not None and self.final_beta <= 0:
             raise ValueError("final_beta must be positive or None")
 
@@ -210,16 +255,22 @@ class Registration:
     faces : (m, 3) int64 ndarray
         The reference's faces.
     transform : (4, 4) float64 ndarray
-        The rigid part: initial alignment composed with all rigid steps,
-        reference -> target coordinates. ``vertices - apply_transform(transform,
-        reference.vertices)`` is the elastic displacement.
+        The rigid part, reference -> target coordinates: the rotation of
+        ``affine`` (polar decomposition), moving the reference's centroid
+        where ``affine`` does.
+    affine : (4, 4) float64 ndarray
+        The global part: initial alignment composed with all global (rigid or
+        affine) steps. ``vertices - apply_transform(affine,
+        reference.vertices)`` is the elastic displacement. Equal to
+        ``transform`` when every global step was rigid.
     log : tuple of IterationRecord
         Per-iteration log.
     converged : bool
         Whether the convergence test passed before ``max_iterations``.
     orientation_scores : (k,) float64 ndarray
-        Score of each initial-alignment candidate (lower is better; empty
-        unless ``orientation="search"``).
+        Score of each initial-alignment candidate, the twist candidates
+        after the principal-axis ones (lower is better; empty unless
+        ``orientation="search"``).
     orientation_index : int
         The candidate chosen (-1 unless ``orientation="search"``).
     seconds : float
@@ -234,6 +285,7 @@ class Registration:
     orientation_scores: np.ndarray = field(default_factory=lambda: np.zeros(0))
     orientation_index: int = -1
     seconds: float = 0.0
+    affine: np.ndarray = field(default_factory=lambda: np.eye(4))
 
     @property
     def mesh(self) -> Mesh:
@@ -474,7 +526,7 @@ def _solve_pcg(
 @dataclass
 class _State:
     positions: np.ndarray  # current deformed vertices of the active level
-    transform: np.ndarray  # accumulated rigid transform, reference -> target
+    transform: np.ndarray  # accumulated global (rigid or affine) transform, reference -> target
     prev_distance: float = np.inf
 
 
@@ -487,6 +539,7 @@ def _iterate(
     *,
     use_pcg: bool,
     rigid: bool,
+    affine: bool = False,
     prolong: sp.csr_matrix | None = None,
 ) -> tuple[float, float]:
     """One RN-ICP-T iteration in place on ``state``; returns (d_t, kept fraction)."""
@@ -507,7 +560,9 @@ def _iterate(
         return np.inf, kept
     d_t = corr.mean_distance
     if rigid:
-        step = rigid_fit(pos[found], corr.points[found])
+        step = _affine_fit(pos[found], corr.points[found]) if affine else None
+        if step is None:
+            step = rigid_fit(pos[found], corr.points[found])
         pos = apply_transform(step, pos)
         state.transform = step @ state.transform
     w = found.astype(np.float64)
@@ -589,19 +644,49 @@ def _search_orientation(
     scfg = replace(cfg, check_crossings=False)
     v = target.mesh.vertices
     cap = 0.1 * float(np.sqrt(((v - v.mean(axis=0)) ** 2).sum(axis=1).mean()))
-    scores = np.empty(len(candidates))
-    transforms = np.empty_like(candidates)
-    for i, c in enumerate(candidates):
-        st = _State(apply_transform(c, lev.vertices), c.copy())
-        for b in betas:
-            _iterate(lev, st, target, b, scfg, use_pcg=False, rigid=True)
+    affine = cfg.affine in ("stiff", "all")
+
+    def score(st: _State) -> float:
+        # a one-sided score: a two-sided one (target -> reference distances
+        # too) and one adding the deformation energy of eq. 8 were measured
+        # and told the right candidate apart no better
         normals = vertex_normals(st.positions, lev.faces)
         corr = find_correspondences(
             st.positions, lev.faces, normals, target, max_angle=cfg.max_angle, check_crossings=False
         )
-        scores[i] = float(np.where(corr.found, np.minimum(corr.distances, cap), cap).mean())
-        transforms[i] = st.transform
+        return float(np.where(corr.found, np.minimum(corr.distances, cap), cap).mean())
+
+    states = [_State(apply_transform(c, lev.vertices), c.copy()) for c in candidates]
+    for st in states:
+        # no early pruning: halfway through the schedule the right candidate
+        # often still scores worse than wrong ones (measured on apples)
+        for b in betas:
+            _iterate(lev, st, target, b, scfg, use_pcg=False, rigid=True, affine=affine)
+    scores = np.array([score(st) for st in states])
+    transforms = np.stack([st.transform for st in states])
     return scores, transforms
+
+
+def _symmetry_axis(vertices: np.ndarray) -> np.ndarray:
+    """The principal axis whose variance stands most apart from the other two.
+
+    A fruit is roughly a body of revolution about its stalk axis: the two
+    variances across it are close, the one along it differs (larger for a
+    pepper or zucchini, smaller for a flattened apple).
+    """
+    pa = principal_axes(vertices)
+    lv = np.log(pa.variances)
+    gap = [min(abs(lv[i] - lv[j]) for j in range(3) if j != i) for i in range(3)]
+    return pa.axes[:, int(np.argmax(gap))]
+
+
+def _twist_candidates(transform: np.ndarray, axis: np.ndarray, centre: np.ndarray, n: int) -> np.ndarray:
+    """``transform`` followed by ``n`` equal turns about ``axis`` through ``centre``."""
+    out = np.empty((n, 4, 4))
+    for k in range(n):
+        r = rotation_about(axis, 2.0 * np.pi * k / n)
+        out[k] = rigid_transform(r, centre - r @ centre) @ transform
+    return out
 
 
 def _refine_rigid(
@@ -637,6 +722,104 @@ def _refine_rigid(
     return t
 
 
+def _target_samples(target: TargetSurface, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """About ``n`` target vertices and normals, evenly spread over the vertex order (deterministic)."""
+    v = target.mesh.vertices
+    idx = np.linspace(0, len(v) - 1, min(n, len(v))).astype(np.int64)
+    return v[idx], target.normals[idx]
+
+
+def _two_sided_pairs(
+    pos: np.ndarray,
+    faces: np.ndarray,
+    target: TargetSurface,
+    samples: tuple[np.ndarray, np.ndarray],
+    cfg: RegistrationConfig,
+    max_distance: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """Point-to-plane pairs in both directions: ``(p, q, n, d)``.
+
+    Reference -> target: the normal rays of :func:`find_correspondences`.
+    Target -> reference: sampled target vertices and their closest points on
+    the (transformed) reference. Rays from a part of the reference that
+    overhangs the target (the end of a zucchini longer than the scan) hit
+    nothing, so nothing would pull it back; the target's own points there do.
+    ``n`` are target normals, ``d`` the mean forward ray distance.
+    """
+    corr = find_correspondences(
+        pos,
+        faces,
+        vertex_normals(pos, faces),
+        target,
+        max_angle=cfg.max_angle,
+        max_distance=max_distance,
+        check_crossings=False,
+    )
+    q_b, n_b = samples
+    cp = closest_points(Mesh(pos, faces), q_b)
+    fn = face_normals(pos, faces)[cp.face_index]
+    ok = (np.einsum("ij,ij->i", fn, n_b) >= np.cos(np.radians(cfg.max_angle))) & (cp.distances < max_distance)
+    f = corr.found
+    p = np.concatenate([pos[f], cp.points[ok]])
+    q = np.concatenate([corr.points[f], q_b[ok]])
+    n = np.concatenate([corr.target_normals[f], n_b[ok]])
+    return p, q, n, corr.mean_distance
+
+
+def _affine_initialize(
+    lev: _Level,
+    transform: np.ndarray,
+    target: TargetSurface,
+    cfg: RegistrationConfig,
+    *,
+    iterations: int = 10,
+    max_stretch: float = 3.0,
+) -> np.ndarray:
+    """Two-sided point-to-plane affine ICP of the undeformed level from ``transform``.
+
+    The paper's "initializing globally affine step" (section 1): size and
+    proportion differences (a longer zucchini, a flatter apple) are taken up
+    by one global map before the translation-only elastic steps, which
+    cannot stretch a surface along itself. Point-to-plane residuals let the
+    surface slide tangentially, and the target -> reference pairs (see
+    :func:`_two_sided_pairs`) pull in ends that overhang the target. A
+    small ridge towards the identity step keeps directions the residual
+    barely sees still; a step that would make the map reflect or squash (a
+    singular value outside ``[1 / max_stretch, max_stretch]``) is not taken.
+    """
+    t = transform.copy()
+    prev = np.inf
+    samples = _target_samples(target, 2 * lev.vertices.shape[0])
+    for _ in range(iterations):
+        pos = apply_transform(t, lev.vertices)
+        p, q, n, d = _two_sided_pairs(pos, lev.faces, target, samples, cfg, cfg.distance_factor * prev)
+        if len(p) < 12 or not np.isfinite(d):
+            break
+        prev = d
+        c = p.mean(axis=0)
+        pc = p - c
+        scale = float(np.sqrt((pc**2).sum(axis=1).mean()))
+        pc = pc / scale  # unit size: the linear and translation unknowns compare
+        # residual ((I + D) p + u - q) . n, linear in D (3x3, row-major) and u (3)
+        a = np.hstack([(n[:, :, None] * pc[:, None, :]).reshape(len(p), 9), n])
+        b = np.einsum("ij,ij->i", q - p, n)
+        ata = a.T @ a
+        lam = AFFINE_RIDGE * np.trace(ata) / 12.0
+        x = np.linalg.solve(ata + lam * np.eye(12), a.T @ b)
+        d_lin = x[:9].reshape(3, 3) / scale
+        step = np.eye(4)
+        step[:3, :3] += d_lin
+        step[:3, 3] = x[9:] - d_lin @ c
+        new = step @ t
+        sv = np.linalg.svd(new[:3, :3], compute_uv=False)
+        if np.linalg.det(new[:3, :3]) <= 0 or sv.min() < 1.0 / max_stretch or sv.max() > max_stretch:
+            break
+        t = new
+        if np.abs(x).max() < 1e-6:
+            break
+    return t
+
+
 def _point_to_plane_step(p: np.ndarray, q: np.ndarray, n: np.ndarray) -> np.ndarray:
     """One Gauss-Newton step of point-to-plane ICP: min sum(((R p + t - q) . n)^2).
 
@@ -653,6 +836,47 @@ def _point_to_plane_step(p: np.ndarray, q: np.ndarray, n: np.ndarray) -> np.ndar
     r = rotation_about(omega, angle) if angle > 1e-15 else np.eye(3)
     # rotate about the centroid c, then translate
     return rigid_transform(r, c - r @ c + tr)
+
+
+def _affine_fit(p: np.ndarray, q: np.ndarray, *, max_stretch: float = 3.0) -> np.ndarray | None:
+    """Least-squares affine transform ``min sum |A p + t - q|^2`` on paired points.
+
+    Returns ``None`` when the fit is not trustworthy: fewer than 12 pairs,
+    a reflection (``det A <= 0``) or a singular value of ``A`` outside
+    ``[1 / max_stretch, max_stretch]`` (pairs on one side of the surface,
+    e.g. early rays that only reach a flat face, can make the fit
+    degenerate); the caller then takes a rigid step.
+    """
+    if len(p) < 12:
+        return None
+    c = p.mean(axis=0)
+    pc = p - c
+    h = pc.T @ pc
+    if np.linalg.cond(h) > 1e8:
+        return None
+    # A = (Q^T P) (P^T P)^-1 with centred P and Q; t from the centroids
+    a = np.linalg.solve(h, pc.T @ (q - q.mean(axis=0))).T
+    sv = np.linalg.svd(a, compute_uv=False)
+    if np.linalg.det(a) <= 0 or sv.min() < 1.0 / max_stretch or sv.max() > max_stretch:
+        return None
+    out = np.eye(4)
+    out[:3, :3] = a
+    out[:3, 3] = q.mean(axis=0) - a @ c
+    return out
+
+
+def _rigid_part(affine: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """The rotation of ``affine`` (polar decomposition) about the centroid of ``points``.
+
+    The rigid transform that moves the centroid of ``points`` where
+    ``affine`` does and turns it by the rotation closest to the linear part.
+    """
+    u, _, vt = np.linalg.svd(affine[:3, :3])
+    r = u @ vt
+    if np.linalg.det(r) < 0:  # cannot happen for an accepted affine step; be safe
+        r = u @ np.diag([1.0, 1.0, -1.0]) @ vt
+    c = points.mean(axis=0)
+    return rigid_transform(r, apply_transform(affine, c[None])[0] - r @ c)
 
 
 def register(
@@ -745,7 +969,21 @@ def register(
         else:
             scores, transforms = _search_orientation(template, tgt, cands, cfg)
             chosen = int(np.argmin(scores))
+            if cfg.twists > 0 and reference_up is None:  # a hint's candidates are twists already
+                # the 24 principal-axis candidates fix the stalk axis but only
+                # sample the turn about it in 90-degree steps (and not at all
+                # well when the two cross-axis variances are nearly equal)
+                base = _rigid_part(cands[chosen], template.mesh.vertices)
+                axis = base[:3, :3] @ _symmetry_axis(template.mesh.vertices)
+                centre = tgt.mesh.vertices.mean(axis=0)
+                tw = _twist_candidates(cands[chosen], axis, centre, cfg.twists)[1:]
+                tw_scores, tw_transforms = _search_orientation(template, tgt, tw, cfg)
+                scores = np.concatenate([scores, tw_scores])
+                transforms = np.concatenate([transforms, tw_transforms])
+                chosen = int(np.argmin(scores))
             t0 = _refine_rigid(coarse, transforms[chosen], tgt, cfg)
+    if cfg.affine == "init":
+        t0 = _affine_initialize(coarse, t0, tgt, cfg)
 
     # --- schedule ------------------------------------------------------------
     betas = cfg.betas()
@@ -753,6 +991,9 @@ def register(
     on_coarse = cfg.multiresolution and template.coarse is not template.mesh
     state = _State(apply_transform(t0, coarse.vertices if on_coarse else fine.vertices), t0.copy())
     level_name = "coarse" if on_coarse else "fine"
+    # filter (c) only on the fine level: a stiff coarse surface does not fold
+    # back on itself, and the filter costs a ray scene of the source per step
+    cfg_coarse = replace(cfg, check_crossings=False)
     converged = False
     it = 0
     prev_d = np.inf
@@ -770,9 +1011,10 @@ def register(
             state,
             tgt,
             beta_level,
-            cfg,
+            cfg if level_name == "fine" else cfg_coarse,
             use_pcg=level_name == "fine",
             rigid=cfg.rigid_steps,
+            affine=cfg.affine == "all" or (cfg.affine == "stiff" and beta * ratio >= COARSE_MIN_BETA),
             prolong=template.prolongation() if on_coarse else None,
         )
         record(it, level_name, beta, d_t, kept, t_it)
@@ -826,12 +1068,13 @@ def register(
     return Registration(
         verts,
         template.mesh.faces,
-        state.transform,
+        _rigid_part(state.transform, template.mesh.vertices),
         tuple(log),
         converged,
         scores,
         chosen,
         time.perf_counter() - t_start,
+        affine=state.transform,
     )
 
 
