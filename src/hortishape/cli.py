@@ -293,9 +293,11 @@ def _print_build(result) -> None:
     share = var / var.sum() if var.size else var
     cumulative = share.cumsum()
     print(f"model: {len(result.names)} instances, {len(var)} modes")
-    print(f"{'mode':>6}{'SD mm':>10}{'variance %':>12}{'cumulative %':>14}")
+    # 1 SD of a mode moves the vertices by this much (root mean square)
+    print(f"{'mode':>6}{'1 SD moves a vertex (RMS) mm':>30}{'variance %':>12}{'cumulative %':>14}")
     for k in range(min(10, len(var))):
-        print(f"{k + 1:>6}{var[k] ** 0.5:>10.2f}{100 * share[k]:>12.1f}{100 * cumulative[k]:>14.1f}")
+        rms = (var[k] / result.n_points) ** 0.5
+        print(f"{k + 1:>6}{rms:>30.2f}{100 * share[k]:>12.1f}{100 * cumulative[k]:>14.1f}")
     print(f"wrote {result.model_path} in {result.seconds:.1f} s")
 
 

@@ -390,7 +390,9 @@ class BuildResult:
         ``(path, reason)`` of every scan left out.
     first_pass, second_pass : tuple of InstanceResult
     explained_variance : (k,) float64 ndarray
-        Variance of each mode, mm^2.
+        Variance of each mode, mm^2 (summed over all 3n coordinates).
+    n_points : int
+        Vertices of the model's shapes.
     seconds : float
     """
 
@@ -402,6 +404,7 @@ class BuildResult:
     first_pass: tuple
     second_pass: tuple
     explained_variance: np.ndarray
+    n_points: int
     seconds: float
 
 
@@ -554,7 +557,7 @@ def build_model(
     }
     _atomic_text(out / "summary.json", json.dumps(_jsonable(summary), indent=1))
     return BuildResult(out, model_path, str(ref_path), tuple(names), tuple(skipped), tuple(first),
-                       tuple(second), model.explained_variance_, seconds)
+                       tuple(second), model.explained_variance_, model.n_points_, seconds)
 
 
 def _jsonable(value):
