@@ -51,6 +51,7 @@ import numpy as np
 from ._rng import RandomState, as_generator, spawn_seeds
 from .errors import HortishapeError
 from .mesh import Mesh
+from .surface import barycentric_interpolate, closest_points, face_areas, signed_volume, vertex_normals
 
 __all__ = [
     "PRODUCTS",
@@ -60,7 +61,6 @@ __all__ = [
     "make_instance",
     "make_population",
     "true_correspondence",
-    "closest_points",
     "write_instance",
     "read_truth",
     "write_population",
@@ -781,7 +781,7 @@ def make_instance(
     # Voxel size from the surface area (of the coarse mesh, which cuts corners):
     # marching cubes gives about 1.48 vertices per h^2 of it (measured over the
     # five products: 0.96-1.03 times the count asked for).
-    scan_area = _mesh_area(deform.to_body(c_verts), c_faces)
+    scan_area = float(face_areas(deform.to_body(c_verts), c_faces).sum())
     n_target = int(n_vertices) if n_vertices else int(rng.uniform(70_000, 130_000))
     h = math.sqrt(1.48 * scan_area / n_target)
 
@@ -802,13 +802,13 @@ def make_instance(
     verts, faces, _, _ = marching_cubes(grid, 0.0, spacing=(h, h, h), allow_degenerate=True)
     verts = verts + lo
     faces = faces.astype(np.int64)
-    if _signed_volume(verts, faces) < 0:  # outward normals
+    if signed_volume(verts, faces) < 0:  # outward normals
         faces = faces[:, ::-1].copy()
 
     canonical = deform.inverse(verts)
     parts = canon.part_labels(canonical)
     if noise > 0:
-        normals = _vertex_normals(verts, faces)
+        normals = vertex_normals(verts, faces)
         verts = verts + normals * rng.normal(0.0, noise, size=(len(verts), 1))
 
     lm = {k: deform.forward(v[None, :])[0] for k, v in lm_canon.items()}
@@ -831,22 +831,6 @@ def make_instance(
         voxel_size=h,
         volume=vol,
     )
-
-
-def _mesh_area(v: np.ndarray, f: np.ndarray) -> float:
-    return 0.5 * float(np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1).sum())
-
-
-def _signed_volume(v: np.ndarray, f: np.ndarray) -> float:
-    return float(np.einsum("ij,ij->i", v[f[:, 0]], np.cross(v[f[:, 1]], v[f[:, 2]])).sum() / 6.0)
-
-
-def _vertex_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
-    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-    n = np.zeros_like(v)
-    for k in range(3):
-        np.add.at(n, f[:, k], fn)
-    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
 
 
 def _ct_volume(grid, origin, h, canon, deform, product, rng):
@@ -890,111 +874,6 @@ def _ct_volume(grid, origin, h, canon, deform, product, rng):
 # --------------------------------------------------------------------------
 
 
-def closest_points(points, vertices, faces) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Closest points on a triangle mesh.
-
-    Looks up the nearest vertex (k-d tree) and projects onto the triangles
-    around it and around its nearest neighbours, which is exact for points
-    close to a fine mesh (the use here: ground-truth lookups).
-
-    Parameters
-    ----------
-    points : (k, 3) array_like of float
-    vertices : (n, 3) array_like of float
-    faces : (m, 3) array_like of int
-
-    Returns
-    -------
-    closest : (k, 3) float64 ndarray
-    face : (k,) int64 ndarray
-        Triangle holding each closest point.
-    barycentric : (k, 3) float64 ndarray
-
-    Examples
-    --------
-    >>> v = np.array([[0., 0, 0], [1, 0, 0], [0, 1, 0]]); f = np.array([[0, 1, 2]])
-    >>> closest_points([[0.2, 0.2, 1.0]], v, f)[0].round(6).tolist()
-    [[0.2, 0.2, 0.0]]
-    """
-    from scipy.spatial import cKDTree
-
-    p = np.asarray(points, dtype=float).reshape(-1, 3)
-    v = np.asarray(vertices, dtype=float)
-    f = np.asarray(faces, dtype=np.int64)
-    # vertex -> incident faces, as a padded table
-    vf_v = f.ravel()
-    vf_f = np.repeat(np.arange(len(f)), 3)
-    order = np.argsort(vf_v, kind="stable")
-    vf_v, vf_f = vf_v[order], vf_f[order]
-    counts = np.bincount(vf_v, minlength=len(v))
-    start = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    width = int(counts.max())
-    table = np.full((len(v), width), -1, dtype=np.int64)
-    col = np.arange(len(vf_v)) - start[vf_v]
-    table[vf_v, col] = vf_f
-
-    _, nn = cKDTree(v).query(p, k=min(3, len(v)))
-    nn = np.atleast_2d(nn.reshape(len(p), -1))
-    cand = table[nn].reshape(len(p), -1)  # (k, 3*width)
-    valid = cand >= 0
-    cf = np.where(valid, cand, 0)
-    a, b, c = v[f[cf, 0]], v[f[cf, 1]], v[f[cf, 2]]
-    q, bary = _closest_on_triangles(p[:, None, :], a, b, c)
-    d2 = np.where(valid, ((q - p[:, None, :]) ** 2).sum(-1), np.inf)
-    best = np.argmin(d2, axis=1)
-    rows = np.arange(len(p))
-    return q[rows, best], cf[rows, best], bary[rows, best]
-
-
-def _closest_on_triangles(p, a, b, c):
-    """Closest point on triangles (broadcast); returns points and barycentrics.
-
-    Ericson, Real-Time Collision Detection, 5.1.5, vectorised.
-    """
-    ab, ac, ap = b - a, c - a, p - a
-    d1 = (ab * ap).sum(-1)
-    d2 = (ac * ap).sum(-1)
-    bp = p - b
-    d3 = (ab * bp).sum(-1)
-    d4 = (ac * bp).sum(-1)
-    cp = p - c
-    d5 = (ab * cp).sum(-1)
-    d6 = (ac * cp).sum(-1)
-    va = d3 * d6 - d5 * d4
-    vb = d5 * d2 - d1 * d6
-    vc = d1 * d4 - d3 * d2
-    denom = va + vb + vc
-    denom = np.where(np.abs(denom) < 1e-30, 1e-30, denom)
-    v = vb / denom
-    w = vc / denom
-    u = 1.0 - v - w
-    bary = np.stack([u, v, w], -1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        # region tests, most specific last so they override
-        t_ab = np.clip(d1 / (d1 - d3), 0, 1)
-        t_ac = np.clip(d2 / (d2 - d6), 0, 1)
-        t_bc = np.clip((d4 - d3) / ((d4 - d3) + (d5 - d6)), 0, 1)
-    conds = [
-        ((vc <= 0) & (d1 >= 0) & (d3 <= 0), np.stack([1 - t_ab, t_ab, 0 * t_ab], -1)),
-        ((vb <= 0) & (d2 >= 0) & (d6 <= 0), np.stack([1 - t_ac, 0 * t_ac, t_ac], -1)),
-        ((va <= 0) & ((d4 - d3) >= 0) & ((d5 - d6) >= 0), np.stack([0 * t_bc, 1 - t_bc, t_bc], -1)),
-        ((d1 <= 0) & (d2 <= 0), _unit(0, d1.shape)),
-        ((d3 >= 0) & (d4 <= d3), _unit(1, d1.shape)),
-        ((d6 >= 0) & (d5 <= d6), _unit(2, d1.shape)),
-    ]
-    for cond, val in conds:
-        bary = np.where(cond[..., None], val, bary)
-    bary = np.nan_to_num(bary, nan=1.0 / 3.0)
-    q = bary[..., :1] * a + bary[..., 1:2] * b + bary[..., 2:] * c
-    return q, bary
-
-
-def _unit(i: int, shape) -> np.ndarray:
-    out = np.zeros((*shape, 3))
-    out[..., i] = 1.0
-    return out
-
-
 def true_correspondence(canonical_points, instance: SyntheticInstance) -> np.ndarray:
     """Where canonical points lie on ``instance``, in its scanner coordinates (mm).
 
@@ -1021,9 +900,9 @@ def true_correspondence(canonical_points, instance: SyntheticInstance) -> np.nda
     >>> true_correspondence(a.landmarks_canonical["bottom"][None], b).shape
     (1, 3)
     """
-    _, face, bary = closest_points(canonical_points, instance.canonical, instance.mesh.faces)
-    tri = instance.mesh.vertices[instance.mesh.faces[face]]
-    return np.einsum("kj,kjd->kd", bary, tri)
+    faces = instance.mesh.faces
+    cp = closest_points(Mesh(instance.canonical, faces), np.asarray(canonical_points, dtype=float).reshape(-1, 3))
+    return barycentric_interpolate(instance.mesh.vertices, faces, cp.face_index, cp.barycentric)
 
 
 # --------------------------------------------------------------------------
