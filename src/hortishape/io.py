@@ -121,8 +121,11 @@ def _check_not_empty(path: Path, error: type[Exception]) -> None:
 
 
 @contextlib.contextmanager
-def _atomic_target(path: Path, error: type[Exception]) -> Iterator[Path]:
+def atomic_path(path: Path, error: type[Exception]) -> Iterator[Path]:
     """Yield a temporary path next to ``path``; move it onto ``path`` on success.
+
+    Every hortishape file is written through this (meshes, volumes, models,
+    pictures, logs), so no reader ever sees a half-written file.
 
     The temporary name starts with a dot (so folder scans skip it) and ends with
     the target's extension (SimpleITK picks its writer by extension). On any
@@ -1280,7 +1283,7 @@ def write_mesh(
             stacklevel=2,
         )
     try:
-        with _atomic_target(p, MeshError) as tmp:
+        with atomic_path(p, MeshError) as tmp:
             fmt.write(tmp, vertices, tris, colors, scalars, bool(binary))
     except _MissingDependencyError as exc:
         raise MeshError(f"{p}: {exc}") from None
@@ -1631,7 +1634,7 @@ def _metaimage_payload(
 def _write_metaimage(path: Path, volume: Volume, compress: bool) -> None:
     code, parts, size = _metaimage_payload(volume, compress)
     if _full_suffix(path) == ".mha":
-        with _atomic_target(path, VolumeError) as tmp, open(tmp, "wb") as fh:
+        with atomic_path(path, VolumeError) as tmp, open(tmp, "wb") as fh:
             fh.write(_metaimage_text(volume, code, "LOCAL", size))
             for part in parts:
                 fh.write(part)
@@ -1639,10 +1642,10 @@ def _write_metaimage(path: Path, volume: Volume, compress: bool) -> None:
     # .mhd: header plus a data file next to it; the header is replaced last, so
     # an interrupted write never leaves a header pointing at missing data.
     data_path = path.with_suffix(".zraw" if compress else ".raw")
-    with _atomic_target(data_path, VolumeError) as tmp, open(tmp, "wb") as fh:
+    with atomic_path(data_path, VolumeError) as tmp, open(tmp, "wb") as fh:
         for part in parts:
             fh.write(part)
-    with _atomic_target(path, VolumeError) as tmp:
+    with atomic_path(path, VolumeError) as tmp:
         tmp.write_bytes(_metaimage_text(volume, code, data_path.name, size))
 
 
@@ -1859,7 +1862,7 @@ def write_volume(path: PathLike, volume: Volume, *, compress: bool = True) -> Pa
     image.SetSpacing(volume.spacing.tolist())
     image.SetOrigin(volume.origin.tolist())
     image.SetDirection(volume.direction.ravel().tolist())
-    with _atomic_target(p, VolumeError) as tmp:
+    with atomic_path(p, VolumeError) as tmp:
         try:
             sitk.WriteImage(image, str(tmp), compress)
         except RuntimeError as exc:

@@ -35,7 +35,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import secrets
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -615,24 +614,11 @@ class ShapeModel:
         self._check_fitted()
         import h5py
 
+        from .io import atomic_path
+
         target = Path(path)
-        if target.is_dir():
-            raise HortishapeError(f"{target}: is a directory")
-        if not target.parent.is_dir():
-            raise HortishapeError(f"{target}: cannot write, the folder {target.parent} does not exist")
-        tmp = target.parent / f".{target.name}.{secrets.token_hex(4)}.tmp"
-        try:
-            with h5py.File(tmp, "w") as f:
-                self._write_h5(f)
-            os.replace(tmp, target)
-        except BaseException as exc:
-            try:
-                tmp.unlink()
-            except OSError:
-                pass
-            if isinstance(exc, OSError):
-                raise HortishapeError(f"{target}: cannot write ({exc.strerror or exc})") from None
-            raise
+        with atomic_path(target, HortishapeError) as tmp, h5py.File(tmp, "w") as f:
+            self._write_h5(f)
         return target
 
     def _write_h5(self, f) -> None:

@@ -27,7 +27,7 @@ from typing import Callable, Iterable, Sequence
 import numpy as np
 
 from .errors import ConvergenceWarning, HortishapeError
-from .io import is_mesh_file, mesh_formats, read_mesh, write_mesh
+from .io import atomic_path, is_mesh_file, mesh_formats, read_mesh, write_mesh
 from .mesh import Mesh
 from .register import Registration, RegistrationConfig, Template, prepare_reference, register
 
@@ -124,13 +124,8 @@ def _init_worker(template: Template, config: RegistrationConfig, fingerprint: st
 
 
 def _atomic_text(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    try:
+    with atomic_path(path, HortishapeError) as tmp:
         tmp.write_text(text)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
 
 
 def _result_from_log(log: dict, source: Path, *, resumed: bool) -> InstanceResult:

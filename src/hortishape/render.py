@@ -43,7 +43,6 @@ import functools
 import math
 import os
 import re
-import secrets
 import signal
 import subprocess
 import sys
@@ -824,17 +823,6 @@ def _add_surface(plotter, cell: _Cell, colormap, norm_range) -> None:
         )
 
 
-def _vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals, ``(n, 3)`` (zero where undefined)."""
-    tri = vertices[faces]
-    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    normals = np.zeros_like(vertices)
-    for k in range(3):
-        np.add.at(normals, faces[:, k], cross)
-    length = np.linalg.norm(normals, axis=1, keepdims=True)
-    return np.divide(normals, length, out=np.zeros_like(normals), where=length > 0)
-
-
 def _cluster(vertices, faces, values, on_points, max_faces):
     """Decimate by vertex clustering until at most about ``max_faces`` faces remain.
 
@@ -890,7 +878,9 @@ def _render_matplotlib(cell: _Cell, viewport, colormap, norm_range) -> np.ndarra
     vertices, faces, values = _cluster(
         cell.mesh.vertices, cell.mesh.faces, values, on_points, _MPL_MAX_FACES
     )
-    normals = _vertex_normals(vertices, faces)
+    from .surface import vertex_normals
+
+    normals = vertex_normals(vertices, faces)
 
     # the lights and materials of the VTK backend, evaluated per vertex
     # (two-sided: normals turned towards the camera) and averaged per face
@@ -1028,16 +1018,7 @@ def _write_png(image: np.ndarray, target: Path) -> None:
     """Write ``image`` to ``target`` atomically (temporary file, then ``os.replace``)."""
     from PIL import Image
 
-    temporary = target.with_name(f".{target.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
-    # os.open with mode 0o666 lets the umask decide the permissions, as for any new file
-    handle = os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-    try:
-        with os.fdopen(handle, "wb") as stream:
-            Image.fromarray(np.ascontiguousarray(image, dtype=np.uint8)).save(stream, format="PNG")
-        os.replace(temporary, target)
-    except BaseException:
-        try:
-            os.unlink(temporary)
-        except FileNotFoundError:
-            pass
-        raise
+    from .io import atomic_path
+
+    with atomic_path(target, MeshError) as tmp, open(tmp, "wb") as stream:
+        Image.fromarray(np.ascontiguousarray(image, dtype=np.uint8)).save(stream, format="PNG")

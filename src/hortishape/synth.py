@@ -930,7 +930,7 @@ def write_instance(instance: SyntheticInstance, out_dir, *, random_seed: int | N
     pathlib.Path
         The mesh file.
     """
-    from .io import write_mesh, write_volume
+    from .io import atomic_path, write_mesh, write_volume
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -955,27 +955,14 @@ def write_instance(instance: SyntheticInstance, out_dir, *, random_seed: int | N
                         "scale": d.scale.tolist(), "curvature_per_mm": d.curvature},
         "arrays": npz_path.name,
     }
-    _atomic_write(json_path, lambda p: p.write_text(json.dumps(truth, indent=2)))
-    _atomic_write(
-        npz_path,
-        lambda p: np.savez_compressed(
-            p.open("wb"), canonical=instance.canonical.astype(np.float32), parts=instance.parts
-        ),
-    )
+    with atomic_path(json_path, HortishapeError) as tmp:
+        tmp.write_text(json.dumps(truth, indent=2))
+    with atomic_path(npz_path, HortishapeError) as tmp, open(tmp, "wb") as fh:
+        np.savez_compressed(fh, canonical=instance.canonical.astype(np.float32), parts=instance.parts)
     if instance.volume is not None:
         (out / "volumes").mkdir(exist_ok=True)
         write_volume(out / "volumes" / f"{instance.name}.mha", instance.volume)
     return mesh_path
-
-
-def _atomic_write(path: Path, write: Callable[[Path], object]) -> None:
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
 
 
 def read_truth(mesh_path) -> dict:
