@@ -530,6 +530,14 @@ class _State:
     prev_distance: float = np.inf
 
 
+def _match(positions, faces, target: TargetSurface, cfg: RegistrationConfig, *,
+           max_distance: float = np.inf, check_crossings: bool = False):
+    """Normal-ray correspondences of the surface ``(positions, faces)`` on ``target``."""
+    return find_correspondences(positions, faces, vertex_normals(positions, faces), target,
+                                max_angle=cfg.max_angle, max_distance=max_distance,
+                                check_crossings=check_crossings)
+
+
 def _iterate(
     level: _Level,
     state: _State,
@@ -544,16 +552,8 @@ def _iterate(
 ) -> tuple[float, float]:
     """One RN-ICP-T iteration in place on ``state``; returns (d_t, kept fraction)."""
     pos = state.positions
-    normals = vertex_normals(pos, level.faces)
-    corr = find_correspondences(
-        pos,
-        level.faces,
-        normals,
-        target,
-        max_angle=cfg.max_angle,
-        max_distance=cfg.distance_factor * state.prev_distance,
-        check_crossings=cfg.check_crossings,
-    )
+    corr = _match(pos, level.faces, target, cfg, max_distance=cfg.distance_factor * state.prev_distance,
+                  check_crossings=cfg.check_crossings)
     found = corr.found
     kept = corr.kept_fraction
     if found.sum() < 3:
@@ -650,10 +650,7 @@ def _search_orientation(
         # a one-sided score: a two-sided one (target -> reference distances
         # too) and one adding the deformation energy of eq. 8 were measured
         # and told the right candidate apart no better
-        normals = vertex_normals(st.positions, lev.faces)
-        corr = find_correspondences(
-            st.positions, lev.faces, normals, target, max_angle=cfg.max_angle, check_crossings=False
-        )
+        corr = _match(st.positions, lev.faces, target, cfg)
         return float(np.where(corr.found, np.minimum(corr.distances, cap), cap).mean())
 
     states = [_State(apply_transform(c, lev.vertices), c.copy()) for c in candidates]
@@ -703,15 +700,7 @@ def _refine_rigid(
     prev = np.inf
     for _ in range(iterations):
         pos = apply_transform(t, lev.vertices)
-        corr = find_correspondences(
-            pos,
-            lev.faces,
-            vertex_normals(pos, lev.faces),
-            target,
-            max_angle=cfg.max_angle,
-            max_distance=cfg.distance_factor * prev,
-            check_crossings=False,
-        )
+        corr = _match(pos, lev.faces, target, cfg, max_distance=cfg.distance_factor * prev)
         if corr.found.sum() < 3:
             break
         prev = corr.mean_distance
@@ -746,15 +735,7 @@ def _two_sided_pairs(
     nothing, so nothing would pull it back; the target's own points there do.
     ``n`` are target normals, ``d`` the mean forward ray distance.
     """
-    corr = find_correspondences(
-        pos,
-        faces,
-        vertex_normals(pos, faces),
-        target,
-        max_angle=cfg.max_angle,
-        max_distance=max_distance,
-        check_crossings=False,
-    )
+    corr = _match(pos, faces, target, cfg, max_distance=max_distance)
     q_b, n_b = samples
     cp = closest_points(Mesh(pos, faces), q_b)
     fn = face_normals(pos, faces)[cp.face_index]
@@ -1047,16 +1028,8 @@ def register(
     if cfg.final_beta is not None:
         t_it = time.perf_counter()
         old = state.positions
-        normals = vertex_normals(old, fine.faces)
-        corr = find_correspondences(
-            old,
-            fine.faces,
-            normals,
-            tgt,
-            max_angle=cfg.max_angle,
-            max_distance=cfg.distance_factor * state.prev_distance,
-            check_crossings=cfg.check_crossings,
-        )
+        corr = _match(old, fine.faces, tgt, cfg, max_distance=cfg.distance_factor * state.prev_distance,
+                      check_crossings=cfg.check_crossings)
         w = corr.found.astype(np.float64)
         rhs = np.where(corr.found[:, None], corr.points - old, 0.0)
         x = _solve_pcg(fine.laplacian, cfg.final_beta, w, rhs, rhs, tol=1e-8)
