@@ -1,0 +1,223 @@
+"""Benchmark of `hortishape extract`: accuracy against known surfaces, time and memory on a 512^3 volume.
+
+1. Accuracy. Synthetic CT volumes with known surfaces, made as
+   ``hortishape synth CLASS N OUT --volumes`` makes them (partial-volume edge,
+   noise, hollow peppers, apples with a low-density core; random scanner
+   pose): the surface extracted from each ``OUT/volumes/<name>.mha`` with the
+   default settings is compared with the true surface ``OUT/<name>.ply``:
+   mean distance both ways in voxels, volume error, one watertight component.
+2. Time and memory. A 512^3 int16 volume (256 MB) of a hollow ellipsoid with
+   the same CT model, made here slab by slab and written as an uncompressed
+   MHA, is read and extracted in a fresh process, which reports its wall
+   times and its peak resident memory (the interpreter, the libraries and the
+   volume included). Its surface is compared with the analytic ellipsoid.
+
+Targets (issue 7): mean distance <= 0.15 voxel, volume within 0.2 %, one
+watertight component; 512^3 in <= 20 s with peak memory <= 3x the volume.
+
+Run::
+
+    python benchmarks/extract.py                         # 2 of each product, and the 512^3 volume
+    python benchmarks/extract.py --n 1 --size 256        # quicker
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+PRODUCTS = ("apple", "pepper", "zucchini", "pear", "banana")
+
+# Run in a fresh process so that its peak resident memory is that of reading and
+# extracting one volume, nothing else.
+_CHILD = r"""
+import json, resource, sys, time
+from pathlib import Path
+from hortishape.extract import extract_surface
+from hortishape.io import read_volume, write_mesh
+
+def status_mb(field):
+    # VmHWM is this process's own peak: ru_maxrss would also count the parent's
+    # pages that the fork before exec shared
+    with open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith(field + ":"):
+                return int(line.split()[1]) / 1024
+    return float(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) / 1024
+
+source, target = Path(sys.argv[1]), Path(sys.argv[2])
+base = status_mb("VmRSS")
+t0 = time.perf_counter()
+vol = read_volume(source)
+t1 = time.perf_counter()
+cpu = resource.getrusage(resource.RUSAGE_SELF)
+ext = extract_surface(vol)
+t2 = time.perf_counter()
+cpu2 = resource.getrusage(resource.RUSAGE_SELF)
+write_mesh(target, ext.mesh)
+t3 = time.perf_counter()
+print(json.dumps({
+    "read_s": t1 - t0, "extract_s": t2 - t1, "write_s": t3 - t2,
+    "extract_cpu_s": cpu2.ru_utime + cpu2.ru_stime - cpu.ru_utime - cpu.ru_stime,
+    "rss_after_imports_mb": base,
+    "peak_rss_mb": status_mb("VmHWM"),
+    "volume_mb": vol.data.nbytes / 2**20, "shape": list(vol.shape),
+    "n_vertices": ext.mesh.n_vertices, "n_filled_voxels": ext.n_filled_voxels,
+    "level": ext.levels.level,
+}))
+"""
+
+
+def accuracy(work: Path, products, n: int, seed: int, jobs) -> list[dict]:
+    from hortishape import synth
+    from hortishape.extract import extract_surface
+    from hortishape.io import read_mesh, read_volume
+    from hortishape.surface import check_closed_surface, closest_points, signed_volume
+
+    rows = []
+    print(f"{'scan':<14}{'voxels':>16}{'voxel mm':>9}{'vertices':>10}{'ext->true':>10}{'true->ext':>10}"
+          f"{'max':>7}{'volume %':>10}{'closed':>8}{'s':>6}")
+    for product in products:
+        folder = work / product
+        synth.write_population(product, n, folder, random_state=seed, pose="random", volumes=True, n_jobs=jobs)
+        for i in range(n):
+            name = f"{product}_{i:03d}"
+            truth = read_mesh(folder / f"{name}.ply")
+            h = synth.read_truth(folder / f"{name}.ply")["voxel_size_mm"]
+            vol = read_volume(folder / "volumes" / f"{name}.mha")
+            t0 = time.perf_counter()
+            ext = extract_surface(vol)
+            seconds = time.perf_counter() - t0
+            try:
+                check_closed_surface(ext.mesh, allow_degenerate=True)
+                closed = "yes"
+            except Exception as exc:  # report, do not stop the benchmark
+                closed = f"NO ({exc})"
+            forward = closest_points(truth, ext.mesh.vertices).distances / h
+            backward = closest_points(ext.mesh, truth.vertices).distances / h
+            volume_error = 100.0 * (ext.volume / signed_volume(truth.vertices, truth.faces) - 1.0)
+            row = {"scan": name, "shape": list(vol.shape), "voxel_mm": h, "n_vertices": ext.mesh.n_vertices,
+                   "mean_distance_voxels": float(forward.mean()), "mean_distance_back_voxels": float(backward.mean()),
+                   "max_distance_voxels": float(forward.max()), "volume_error_percent": volume_error,
+                   "closed_one_component": closed == "yes", "seconds": seconds}
+            rows.append(row)
+            print(f"{name:<14}{'x'.join(map(str, vol.shape)):>16}{h:>9.3f}{ext.mesh.n_vertices:>10,}"
+                  f"{forward.mean():>10.4f}{backward.mean():>10.4f}{forward.max():>7.3f}{volume_error:>+10.4f}"
+                  f"{closed:>8}{seconds:>6.1f}")
+    return rows
+
+
+def ellipsoid_volume(size: int, axes, wall: float, *, sigma: float = 0.7, noise: float = 25.0, seed: int = 0):
+    """An int16 CT-like volume ``[x, y, z]`` of a hollow ellipsoid centred in the grid (voxel units).
+
+    Same model as ``synth --volumes``: 1000 in the flesh, 0 in air, an error-function
+    partial-volume edge of ``sigma`` voxels across the first-order distance to
+    the ellipsoid, Gaussian noise. Made plane by plane (x fastest in memory,
+    as read from an MHA file).
+    """
+    from scipy.special import erf
+
+    rng = np.random.default_rng(seed)
+    a = np.asarray(axes, dtype=np.float64)
+    inner = a - wall
+    c = (size - 1) / 2.0
+    data = np.empty((size, size, size), dtype=np.int16, order="F")
+    u = np.arange(size) - c
+    x, y = np.meshgrid(u, u, indexing="ij")
+
+    def distance(z, e):
+        f = (x / e[0]) ** 2 + (y / e[1]) ** 2 + (z / e[2]) ** 2 - 1.0
+        g = 2.0 * np.sqrt((x / e[0] ** 2) ** 2 + (y / e[1] ** 2) ** 2 + (z / e[2] ** 2) ** 2)
+        return f / np.maximum(g, 1e-12)
+
+    s = sigma * math.sqrt(2.0)
+    for k in range(size):
+        flesh = 0.5 * (1.0 - erf(distance(u[k], a) / s))
+        air = 0.5 * (1.0 - erf(distance(u[k], inner) / s))
+        v = 1000.0 * flesh * (1.0 - air) + rng.normal(0.0, noise, size=flesh.shape)
+        data[:, :, k] = np.clip(np.rint(v), -1000, 3000)
+    return data
+
+
+def large(work: Path, size: int) -> dict:
+    from hortishape.io import Volume, read_mesh, write_volume
+
+    axes = np.array([0.45, 0.39, 0.48]) * size
+    wall = 0.05 * size
+    spacing = 0.2
+    t0 = time.perf_counter()
+    data = ellipsoid_volume(size, axes, wall)
+    path = write_volume(work / f"ellipsoid_{size}.mha", Volume(data, spacing=spacing), compress=False)
+    t_make = time.perf_counter() - t0
+    nbytes = data.nbytes
+    del data
+    print(f"\n{size}^3 int16 hollow ellipsoid ({nbytes / 2**20:.0f} MB, semi-axes "
+          f"{'/'.join(f'{v:.0f}' for v in axes)} voxels, wall {wall:.0f} voxels) made and written in {t_make:.1f} s")
+    out = work / f"ellipsoid_{size}.ply"
+    proc = subprocess.run([sys.executable, "-c", _CHILD, str(path), str(out)], capture_output=True, text=True)
+    if proc.returncode:
+        print(proc.stderr)
+        raise SystemExit("the extraction process failed")
+    r = json.loads(proc.stdout.strip().splitlines()[-1])
+    mesh = read_mesh(out)
+    # first-order distance to the ellipsoid, in voxels (origin 0, spacing 0.2 mm)
+    p = mesh.vertices / spacing - (size - 1) / 2.0
+    f = ((p / axes) ** 2).sum(axis=1) - 1.0
+    g = 2.0 * np.linalg.norm(p / axes**2, axis=1)
+    d = np.abs(f / g)
+    from hortishape.surface import signed_volume
+
+    exact = 4.0 / 3.0 * math.pi * axes.prod() * spacing**3
+    vol_err = 100.0 * (signed_volume(mesh.vertices, mesh.faces) / exact - 1.0)
+    r.update(mean_distance_voxels=float(d.mean()), max_distance_voxels=float(d.max()),
+             volume_error_percent=vol_err, peak_over_volume=r["peak_rss_mb"] / r["volume_mb"])
+    print(f"  read {r['read_s']:.1f} s, extract {r['extract_s']:.1f} s (CPU {r['extract_cpu_s']:.1f} s), "
+          f"write {r['write_s']:.1f} s "
+          f"({r['n_vertices']:,} vertices, {r['n_filled_voxels']:,} cavity voxels filled)")
+    print(f"  peak resident memory {r['peak_rss_mb']:.0f} MB = {r['peak_over_volume']:.2f} x the volume "
+          f"({r['volume_mb']:.0f} MB); {r['rss_after_imports_mb']:.0f} MB of it before reading "
+          f"(interpreter and libraries)")
+    print(f"  distance to the analytic ellipsoid: mean {d.mean():.4f} voxel, max {d.max():.3f}; "
+          f"volume {vol_err:+.4f} %")
+    return r
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--products", nargs="+", default=list(PRODUCTS), choices=PRODUCTS)
+    parser.add_argument("--n", type=int, default=2, help="volumes per product")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--size", type=int, default=512, help="edge of the large volume (0: skip it)")
+    parser.add_argument("--jobs", type=int, default=None, help="processes for making the synthetic volumes")
+    parser.add_argument("--out", type=Path, default=None, help="work folder (default: a temporary one)")
+    args = parser.parse_args(argv)
+
+    with tempfile.TemporaryDirectory(prefix="hortishape-extract-") as tmp:
+        work = args.out or Path(tmp)
+        work.mkdir(parents=True, exist_ok=True)
+        rows = accuracy(work, args.products, args.n, args.seed, args.jobs)
+        worst = {
+            "mean_distance_voxels": max(max(r["mean_distance_voxels"], r["mean_distance_back_voxels"]) for r in rows),
+            "abs_volume_error_percent": max(abs(r["volume_error_percent"]) for r in rows),
+            "all_closed_one_component": all(r["closed_one_component"] for r in rows),
+            "seconds_per_volume": float(np.mean([r["seconds"] for r in rows])),
+        }
+        print(f"worst over {len(rows)} volumes: mean distance {worst['mean_distance_voxels']:.4f} voxel "
+              f"(target 0.15), volume error {worst['abs_volume_error_percent']:.4f} % (target 0.2), "
+              f"all one closed component: {worst['all_closed_one_component']}; "
+              f"{worst['seconds_per_volume']:.2f} s per volume")
+        big = large(work, args.size) if args.size else None
+    print(json.dumps({"accuracy": worst, "large": big}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

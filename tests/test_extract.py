@@ -1,0 +1,406 @@
+"""CT volumes to surfaces: analytic shapes, geometry, cavities, supports, slabs, bad volumes, files."""
+
+import json
+
+import numpy as np
+import pytest
+from scipy.special import erf
+
+from hortishape import extract, synth
+from hortishape.cli import main
+from hortishape.errors import VolumeError
+from hortishape.extract import (
+    decimate,
+    extract_file,
+    extract_surface,
+    intensity_levels,
+    render_extraction,
+    taubin_smooth,
+    volume_stem,
+)
+from hortishape.io import Volume, read_mesh, write_mesh, write_volume
+from hortishape.mesh import Mesh
+from hortishape.surface import check_closed_surface, closest_points, face_areas, signed_volume
+
+
+def ct(distance, *, sigma=0.7, noise=0.0, seed=0, dtype=np.float32):
+    """A CT-like volume of a signed distance (voxels, negative inside): 1000 inside, 0 outside,
+    an error-function partial-volume edge, Gaussian noise."""
+    values = 1000.0 * 0.5 * (1.0 - erf(distance / (sigma * np.sqrt(2.0))))
+    if noise:
+        values = values + np.random.default_rng(seed).normal(0.0, noise, distance.shape)
+    return values.astype(dtype)
+
+
+def grid(n):
+    return np.mgrid[:n, :n, :n].astype(np.float64)
+
+
+def sphere_distance(n, centre, radius):
+    x, y, z = grid(n)
+    return np.sqrt((x - centre[0]) ** 2 + (y - centre[1]) ** 2 + (z - centre[2]) ** 2) - radius
+
+
+def area(mesh):
+    return face_areas(mesh.vertices, mesh.faces).sum()
+
+
+# --------------------------------------------------------------------------
+# analytic shapes
+# --------------------------------------------------------------------------
+
+
+def test_sphere_area_and_volume_within_one_percent():
+    c, r = np.array([24.3, 23.8, 24.1]), 16.0
+    vol = Volume(ct(sphere_distance(50, c, r)), spacing=0.5)
+    ext = extract_surface(vol)
+    radius_mm = r * 0.5
+    assert ext.volume == pytest.approx(4 / 3 * np.pi * radius_mm**3, rel=0.01)
+    assert area(ext.mesh) == pytest.approx(4 * np.pi * radius_mm**2, rel=0.01)
+    # sub-voxel: every vertex within a tenth of a voxel of the sphere
+    radial = np.linalg.norm(ext.mesh.vertices - c * 0.5, axis=1) - radius_mm
+    assert np.abs(radial).max() < 0.1 * 0.5
+    assert check_closed_surface(ext.mesh) == 1.0  # one closed component, outward normals
+    assert ext.levels.level == pytest.approx(500.0, abs=5.0)
+    assert ext.levels.background == pytest.approx(0.0, abs=5.0)
+    assert ext.levels.foreground == pytest.approx(1000.0, abs=5.0)
+    # float64 voxels, and voxels exactly at a given level: the same closed surface
+    data64 = np.round(vol.data.astype(np.float64), -1)
+    ext64 = extract_surface(Volume(data64, spacing=0.5), level=500.0)
+    check_closed_surface(ext64.mesh, allow_degenerate=True)
+    assert ext64.volume == pytest.approx(ext.volume, rel=0.003)
+
+
+def test_noisy_int16_sphere_is_accurate_and_smoothing_does_not_shrink_it():
+    c, r = np.array([31.7, 31.7, 31.7]), 20.3
+    data = np.clip(ct(sphere_distance(64, c, r), noise=25.0), -1000, 3000).astype(np.int16)
+    raw = extract_surface(data, smoothing=0)
+    smooth = extract_surface(data, smoothing=10)
+    exact = 4 / 3 * np.pi * r**3
+    for ext in (raw, smooth):
+        assert ext.volume == pytest.approx(exact, rel=0.004)
+    err_raw = np.abs(np.linalg.norm(raw.mesh.vertices - c, axis=1) - r)
+    err_smooth = np.abs(np.linalg.norm(smooth.mesh.vertices - c, axis=1) - r)
+    assert err_raw.mean() < 0.05 and err_smooth.mean() < 0.7 * err_raw.mean()
+    assert abs(smooth.volume / raw.volume - 1) < 0.001
+
+
+def test_spacing_origin_and_direction_are_honoured():
+    # an ellipsoid given in world millimetres, sampled on a tilted, anisotropic grid
+    a = np.array([9.0, 6.0, 7.5])
+    centre = np.array([30.0, -12.0, 5.0])
+    angle = np.deg2rad(30.0)
+    rot = np.array([[np.cos(angle), -np.sin(angle), 0.0], [np.sin(angle), np.cos(angle), 0.0], [0.0, 0.0, 1.0]])
+    for direction in (rot, rot @ np.diag([1.0, 1.0, -1.0])):  # a rotation, and one with a reflection
+        spacing = np.array([0.4, 0.5, 0.6])
+        shape = (64, 52, 44)
+        origin = centre - direction @ (spacing * (np.array(shape) - 1) / 2)
+        geometry = Volume(np.zeros(shape, np.uint8), spacing=spacing, origin=origin, direction=direction)
+        ijk = np.stack(np.meshgrid(*[np.arange(k) for k in shape], indexing="ij"), -1).reshape(-1, 3)
+        p = (geometry.index_to_world(ijk) - centre) / a
+        q = np.sqrt((p**2).sum(1))
+        # approximate distance to the ellipsoid in units of the smallest voxel size
+        dist = ((q - 1) * np.linalg.norm(p, axis=1) / np.maximum(np.linalg.norm(p / a, axis=1), 1e-9) / 0.4)
+        vol = Volume(ct(dist.reshape(shape)), spacing=spacing, origin=origin, direction=direction)
+        ext = extract_surface(vol, smoothing=0)
+        assert ext.volume == pytest.approx(4 / 3 * np.pi * a.prod(), rel=0.01)
+        v = (ext.mesh.vertices - centre) / a
+        assert np.abs(np.sqrt((v**2).sum(1)) - 1).max() < 0.03
+        assert signed_volume(ext.mesh.vertices, ext.mesh.faces) > 0  # outward, whatever the handedness
+
+
+def test_hollow_object_gives_only_its_outer_surface():
+    c = np.array([30.2, 29.8, 30.5])
+    d = sphere_distance(62, c, 24.0)
+    inner = sphere_distance(62, c, 19.0)  # 5-voxel wall around an air cavity
+    shell = np.maximum(d, -inner)
+    seed = sphere_distance(62, c + [0, 0, -12.0], 3.0)  # a dense seed loose in the cavity
+    ext = extract_surface(ct(np.minimum(shell, seed)))
+    check_closed_surface(ext.mesh)
+    radial = np.linalg.norm(ext.mesh.vertices - c, axis=1)
+    assert radial.min() > 23.8  # nothing of the inner wall or the seed
+    assert ext.volume == pytest.approx(4 / 3 * np.pi * 24.0**3, rel=0.005)
+    assert ext.n_filled_voxels == pytest.approx(4 / 3 * np.pi * 19.0**3, rel=0.03)
+
+
+def test_low_density_core_is_filled():
+    c = np.array([24.5, 24.5, 24.5])
+    values = ct(sphere_distance(50, c, 18.0))
+    core = sphere_distance(50, c, 8.0) < 0
+    values[core] = 200.0  # below the level: a cavity for the threshold
+    ext = extract_surface(values)
+    check_closed_surface(ext.mesh)
+    assert np.linalg.norm(ext.mesh.vertices - c, axis=1).min() > 17.8
+    assert ext.n_filled_voxels == core.sum()
+
+
+def test_keeps_the_largest_object():
+    big = sphere_distance(60, (22, 30, 30), 14.0)
+    small = sphere_distance(60, (49, 30, 30), 6.0)
+    ext = extract_surface(ct(np.minimum(big, small)))
+    assert ext.volume == pytest.approx(4 / 3 * np.pi * 14.0**3, rel=0.01)
+    assert ext.mesh.vertices[:, 0].max() < 37
+    np.testing.assert_array_equal(ext.bounds, [[8, 37], [16, 45], [16, 45]])
+
+
+def test_a_bed_touching_the_product_is_dropped():
+    x, y, z = grid(72)
+    ball = np.sqrt((x - 36) ** 2 + (y - 36) ** 2 + (z - 33) ** 2) - 20.0
+    bed = np.maximum(z - 12.7, 1.2 - z)  # a slab across the whole field of view, touching the ball
+    values = ct(np.minimum(ball, bed))
+    ext = extract_surface(values)
+    assert ext.n_support_voxels > 50_000
+    assert ext.volume == pytest.approx(4 / 3 * np.pi * 20.0**3, rel=0.01)
+    assert ext.mesh.vertices[:, 2].min() > 12.5
+    kept = extract_surface(values, remove_support=False)
+    assert kept.n_support_voxels == 0 and kept.volume > 2 * ext.volume
+
+
+def test_a_thin_stalk_is_kept():
+    # the support step only runs for objects touching the border: a stalk is never eroded away
+    x, y, z = grid(60)
+    body = np.sqrt((x - 30) ** 2 + (y - 30) ** 2 + (z - 25) ** 2) - 15.0
+    stalk = np.maximum(np.hypot(x - 30, y - 30) - 1.5, np.maximum(z - 52.0, 30.0 - z))
+    ext = extract_surface(ct(np.minimum(body, stalk)))
+    assert ext.mesh.vertices[:, 2].max() == pytest.approx(52.0, abs=0.3)
+
+
+def test_synthetic_ct_volume_matches_its_true_surface():
+    inst = synth.make_instance("pepper", random_state=5, volume=True, n_vertices=15000, pose="random")
+    ext = extract_surface(inst.volume)
+    truth = inst.mesh
+    h = inst.voxel_size
+    check_closed_surface(ext.mesh)
+    assert closest_points(truth, ext.mesh.vertices).distances.mean() < 0.15 * h
+    assert closest_points(ext.mesh, truth.vertices).distances.mean() < 0.15 * h
+    assert ext.volume == pytest.approx(signed_volume(truth.vertices, truth.faces), rel=0.002)
+    assert ext.n_filled_voxels > 0  # the pepper is hollow
+
+
+# --------------------------------------------------------------------------
+# levels, smoothing, decimation
+# --------------------------------------------------------------------------
+
+
+def test_intensity_levels_are_the_histogram_peaks():
+    d = sphere_distance(48, (23.5, 23.5, 23.5), 15.0)
+    values = np.clip(ct(d, noise=20.0) - 1000.0, -1024, 3000).astype(np.int16)  # air -1000, flesh 0
+    lv = intensity_levels(values)
+    assert lv.background == pytest.approx(-1000.0, abs=4.0)
+    assert lv.foreground == pytest.approx(0.0, abs=4.0)
+    assert lv.level == pytest.approx(-500.0, abs=4.0)
+    assert lv.background < lv.threshold < lv.foreground
+    given = intensity_levels(values, level=-300.0)
+    assert given.level == -300.0 and given.threshold == -300.0
+
+
+def test_a_given_level_moves_the_surface():
+    d = sphere_distance(48, (23.5, 23.5, 23.5), 15.0)
+    values = (1000 * np.clip(0.5 - d / 4.0, 0, 1)).astype(np.int16)  # a linear ramp 4 voxels wide
+    low = extract_surface(values, level=250, smoothing=0)  # integral level on integer voxels
+    high = extract_surface(values, level=750, smoothing=0)
+    check_closed_surface(low.mesh)  # no degenerate triangles either
+    r_low = np.linalg.norm(low.mesh.vertices - 23.5, axis=1).mean()
+    r_high = np.linalg.norm(high.mesh.vertices - 23.5, axis=1).mean()
+    assert r_low - r_high == pytest.approx(2.0, abs=0.05)
+
+
+def test_taubin_smooth_keeps_the_size():
+    import trimesh
+
+    s = trimesh.creation.icosphere(4, radius=20.0)
+    rng = np.random.default_rng(1)
+    noisy = s.vertices * (1 + 0.01 * rng.standard_normal((len(s.vertices), 1)))
+    out = taubin_smooth(noisy, s.faces, iterations=10)
+    r = np.linalg.norm(out, axis=1)
+    assert abs(r.mean() - 20.0) < 0.02 and r.std() < 0.4 * np.linalg.norm(noisy, axis=1).std()
+    np.testing.assert_array_equal(taubin_smooth(noisy, s.faces, iterations=0), noisy)
+    with pytest.raises(ValueError):
+        taubin_smooth(noisy, s.faces, iterations=-1)
+
+
+def test_decimation_to_a_target_vertex_count():
+    c, r = np.array([24.3, 23.8, 24.1]), 18.0
+    ext = extract_surface(ct(sphere_distance(50, c, r)), target_vertices=1500)
+    assert ext.mesh.n_vertices == pytest.approx(1500, abs=5)
+    assert ext.n_marching_cubes_vertices > 5000
+    check_closed_surface(ext.mesh)
+    assert ext.volume == pytest.approx(4 / 3 * np.pi * r**3, rel=0.01)
+    small = Mesh(ext.mesh.vertices, ext.mesh.faces)
+    assert decimate(small, 10**6) is small
+
+
+# --------------------------------------------------------------------------
+# slabs: the result does not depend on how the volume is cut
+# --------------------------------------------------------------------------
+
+
+def test_slabs_specks_and_pockets_do_not_change_the_surface(monkeypatch):
+    c = np.array([27.4, 26.9, 27.2])
+    d = sphere_distance(56, c, 20.0)
+    clean = ct(d)
+    reference = extract_surface(clean, smoothing=0)
+
+    dirty = clean.copy()
+    rng = np.random.default_rng(3)
+    x, y, z = grid(56)
+    far = np.argwhere((d > 3.0) & ((x + y + z) % 2 == 0))
+    specks = far[rng.choice(len(far), 2000, replace=False)]
+    dirty[tuple(specks.T)] = 1000.0  # 2000 one-voxel specks outside
+    deep = np.argwhere((d < -4.0) & ((x + y + z) % 2 == 0))
+    pockets = deep[rng.choice(len(deep), 3000, replace=False)]
+    dirty[tuple(pockets.T)] = 0.0  # 3000 one-voxel air pockets inside
+    # slabs of 3 planes: labels cross many slab boundaries, and a slab holds more
+    # than 255 specks or pockets, so their labels are recomputed instead of stored
+    monkeypatch.setattr(extract, "_SLAB_VOXELS", 3 * 56 * 56)
+    monkeypatch.setattr(extract, "_COARSE_VOXELS", 56**3)
+    sliced = extract_surface(dirty, smoothing=0, level=reference.levels.level)
+    # filled: the pockets, and the flesh voxels whose six neighbours are all pockets
+    hole = np.zeros(dirty.shape, dtype=bool)
+    hole[tuple(pockets.T)] = True
+    walled_in = sum(np.roll(hole, s, axis=a).astype(int) for a in range(3) for s in (-1, 1)) == 6
+    assert reference.n_filled_voxels == 0
+    assert sliced.n_filled_voxels == 3000 + walled_in.sum()
+    assert sliced.mesh.n_vertices == reference.mesh.n_vertices
+    # the same vertices, to float32 rounding (marching cubes' coordinates within a slab)
+    from scipy.spatial import cKDTree
+
+    assert cKDTree(reference.mesh.vertices).query(sliced.mesh.vertices)[0].max() < 1e-5
+    assert cKDTree(sliced.mesh.vertices).query(reference.mesh.vertices)[0].max() < 1e-5
+    check_closed_surface(sliced.mesh)
+
+
+def test_an_object_cut_by_the_volume_border_is_closed():
+    d = sphere_distance(40, (19.5, 19.5, 3.0), 14.0)  # the lower part lies outside the volume
+    ext = extract_surface(ct(d))
+    check_closed_surface(ext.mesh)
+    assert ext.mesh.vertices[:, 2].min() == pytest.approx(-0.5, abs=0.1)  # closed half a voxel out
+
+
+# --------------------------------------------------------------------------
+# bad volumes
+# --------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "data, kwargs, message",
+    [
+        (np.zeros((20, 20, 20)), {}, "same value"),
+        (np.full((20, 20, 20), 1000.0), {}, "same value"),
+        (np.pad(np.zeros((4, 4, 4)), 8, constant_values=1000.0), {}, "touches all six faces"),
+        (np.where(np.arange(8000).reshape(20, 20, 20) == 4210, 1000.0, 0.0), {}, "only 1 voxels"),
+        (np.eye(20), {}, "2D image"),
+        (np.full((10, 10, 10), np.nan), {}, "NaN"),
+        (ct(sphere_distance(20, (10, 10, 10), 5.0)), {"level": 2000.0}, "no voxel is above"),
+        (ct(sphere_distance(20, (10, 10, 10), 5.0)), {"level": -5.0}, "every voxel is above"),
+        (ct(sphere_distance(20, (10, 10, 10), 5.0)), {"level": float("nan")}, "finite"),
+    ],
+    ids=["empty", "all-object", "no-background", "a-speck", "2d", "nan", "level-high", "level-low",
+         "level-nan"],
+)
+def test_bad_volumes_get_a_clear_error(data, kwargs, message):
+    with pytest.raises(VolumeError, match=message):
+        extract_surface(data, **kwargs)
+
+
+@pytest.mark.parametrize("spacing", [0.0, -1.0, (1.0, 0.0, 1.0)])
+def test_zero_or_negative_spacing_is_refused(spacing):
+    with pytest.raises(VolumeError, match="spacing"):
+        extract_surface(Volume(np.zeros((5, 5, 5)), spacing=spacing))
+
+
+def test_bad_options_are_refused():
+    data = ct(sphere_distance(20, (10, 10, 10), 5.0))
+    for kwargs in ({"smoothing": -1}, {"smoothing": 1.5}, {"target_vertices": 2}, {"support_radius": 0.0}):
+        with pytest.raises(ValueError):
+            extract_surface(data, **kwargs)
+
+
+# --------------------------------------------------------------------------
+# files, picture, command line, build
+# --------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def volumes(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("volumes")
+    x, y, z = grid(36) - 17.4
+    for i, axes in enumerate(((12.0, 10.0, 13.0), (13.0, 10.5, 12.0), (11.0, 11.0, 14.0))):
+        q = np.sqrt((x / axes[0]) ** 2 + (y / axes[1]) ** 2 + (z / axes[2]) ** 2)
+        d = (q - 1.0) * min(axes)  # about the distance to the ellipsoid, near it
+        data = np.clip(ct(d, noise=20.0, seed=i), -1000, 3000).astype(np.int16)
+        write_volume(folder / f"ball_{i}.mha", Volume(data, spacing=0.8, origin=(5.0, 0.0, -3.0)))
+    return folder
+
+
+def test_extract_file_writes_the_surface_and_resumes(volumes, tmp_path):
+    first = extract_file(volumes / "ball_0.mha", tmp_path, picture=False)
+    assert first.ok and not first.resumed and first.picture is None
+    mesh = read_mesh(tmp_path / "ball_0.ply")
+    assert mesh.n_vertices == first.n_vertices
+    log = json.loads((tmp_path / "ball_0.json").read_text())
+    assert log["units"] == "mm" and log["volume_mm3"] == pytest.approx(first.volume_mm3)
+    stamp = (tmp_path / "ball_0.ply").stat().st_mtime_ns
+    again = extract_file(volumes / "ball_0.mha", tmp_path, picture=False)
+    assert again.resumed and (tmp_path / "ball_0.ply").stat().st_mtime_ns == stamp
+    other = extract_file(volumes / "ball_0.mha", tmp_path, picture=False, smoothing=0)
+    assert other.ok and not other.resumed
+    bad = extract_file(tmp_path / "missing.nrrd", tmp_path)
+    assert not bad.ok and bad.error.startswith(str(tmp_path / "missing.nrrd"))
+
+
+def test_render_extraction_draws_surface_and_slices(tmp_path):
+    from PIL import Image
+
+    values = ct(sphere_distance(30, (14.5, 14.5, 14.5), 9.5))
+    ext = extract_surface(values)
+    out = render_extraction(values, ext, tmp_path / "check.png", title="ball", size=(900, 300),
+                            backend="matplotlib")
+    image = np.asarray(Image.open(out).convert("RGB"))
+    assert image.shape == (300, 900, 3)
+    red = (image[..., 0] > 200) & (image[..., 1] < 120) & (image[..., 2] < 120)
+    assert red[:, 300:].sum() > 50  # the outline over the slices
+    with pytest.raises(ValueError, match="png"):
+        render_extraction(values, ext, tmp_path / "check.jpg")
+
+
+def test_volume_stem():
+    assert volume_stem("a/b/pear_01.nii.gz") == "pear_01"
+    assert volume_stem("a/b/pear_01.MHA") == "pear_01"
+
+
+def test_cli_extract(volumes, tmp_path, capsys):
+    broken = tmp_path / "broken.mha"
+    broken.write_text("ObjectType = Image\nNDims = 2\nDimSize = 3 3\nElementType = MET_UCHAR\nElementDataFile = LOCAL\n")
+    out = tmp_path / "surfaces"
+    args = ["extract", str(volumes / "ball_0.mha"), str(volumes / "ball_1.mha"), str(broken),
+            "--out", str(out), "--no-picture", "--target-vertices", "1500"]
+    assert main(args) == 1
+    captured = capsys.readouterr()
+    errors = [line for line in captured.err.splitlines() if line.startswith("hortishape: error:")]
+    assert len(errors) == 1 and str(broken) in errors[0] and "2D" in errors[0]
+    assert "extracted 2 of 3" in captured.out
+    for name in ("ball_0", "ball_1"):
+        mesh = read_mesh(out / f"{name}.ply")
+        assert mesh.n_vertices == pytest.approx(1500, abs=5)
+        check_closed_surface(mesh)
+    assert main(args[:3] + ["--out", str(out), "--no-picture", "--target-vertices", "1500"]) == 0
+    assert "resumed" in capsys.readouterr().out
+
+
+def test_build_from_a_folder_of_volumes(volumes, tmp_path):
+    from hortishape.pipeline import build_model, find_scans
+    from hortishape.register import RegistrationConfig
+
+    write_mesh(volumes / "not_a_scan.txt.ply", Mesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]]))
+    try:
+        paths, failed = find_scans(volumes, tmp_path, n_jobs=1)
+        assert [p.name for p in paths] == ["ball_0.ply", "ball_1.ply", "ball_2.ply", "not_a_scan.txt.ply"]
+        assert failed == [] and (tmp_path / "surfaces" / "ball_0.png").is_file()
+        result = build_model(volumes, tmp_path, n_points=600, config=RegistrationConfig(n_iterations=6),
+                             n_jobs=2)
+    finally:
+        (volumes / "not_a_scan.txt.ply").unlink()
+    assert result.names == ("ball_0", "ball_1", "ball_2")
+    assert [p.endswith("not_a_scan.txt.ply") for p, _ in result.skipped] == [True]  # an open triangle
+    assert result.model_path.is_file()
