@@ -3,8 +3,12 @@
 :func:`run_demo` makes a synthetic population (30 apples by default, as CT
 surfaces of ~100k vertices standing on the scanner bed), builds the model
 with the paper's settings (a 30,000-vertex reference, two registration
-passes, generalized Procrustes, PCA), draws five new apples from it and
-pictures the first modes (the paper's Figs. 7 and 8).
+passes, generalized Procrustes, PCA), draws five new apples from it,
+pictures the first modes (the paper's Figs. 7 and 8) and evaluates the
+model (:func:`hortishape.evaluate.evaluate_model`: compactness,
+generalization, specificity, the geometric error map, landmark errors
+against the generator's ground truth and the population's dimensions),
+with the HTML report in ``model/evaluation/report.html``.
 """
 
 from __future__ import annotations
@@ -12,9 +16,12 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 from .pipeline import BuildResult, build_model
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .evaluate import Evaluation
 
 __all__ = ["DemoResult", "run_demo", "write_samples"]
 
@@ -30,6 +37,8 @@ class DemoResult:
     samples_picture: Path
     modes: tuple
     modes_picture: Path
+    evaluation: "Evaluation"
+    report: Path
     seconds: float
 
 
@@ -72,7 +81,7 @@ def run_demo(
     n_jobs: int | None = None,
     progress: Callable | None = None,
 ) -> DemoResult:
-    """Make a synthetic population, build its model, sample it and picture its modes.
+    """Make a synthetic population, build its model, sample it, picture its modes and evaluate it.
 
     Parameters
     ----------
@@ -92,6 +101,7 @@ def run_demo(
     -------
     DemoResult
     """
+    from .evaluate import evaluate_model
     from .model import ShapeModel
     from .report import render_modes, write_mode_meshes
     from .synth import write_population
@@ -107,5 +117,8 @@ def run_demo(
     n_modes = min(3, model.n_components_)
     modes = write_mode_meshes(model, out / "modes", n_modes=n_modes)
     modes_pic = render_modes(model, out / "modes" / "modes.png", n_modes=n_modes)
-    return DemoResult(out, scans, build, tuple(samples), samples_pic, tuple(modes), modes_pic,
-                      time.perf_counter() - start)
+    # the ground-truth landmarks beside the scans are found by default
+    evaluation = evaluate_model(build.out_dir, random_state=seed, progress=progress)
+    return DemoResult(out_dir=out, scans=scans, build=build, samples=tuple(samples), samples_picture=samples_pic,
+                      modes=tuple(modes), modes_picture=modes_pic, evaluation=evaluation,
+                      report=evaluation.files["report"], seconds=time.perf_counter() - start)
