@@ -118,6 +118,81 @@ def _run_synth(args) -> int:
 
 
 # --------------------------------------------------------------------------
+# extract
+# --------------------------------------------------------------------------
+
+
+def _add_extract(sub) -> None:
+    p = sub.add_parser(
+        "extract",
+        help="extract the product's outer surface from CT volumes",
+        description=(
+            "Extract the outer surface of the product in each CT VOLUME (MHA/MHD, NRRD, NIfTI, a TIFF "
+            "stack, or a folder holding a DICOM series or TIFF slices; spacing, origin and direction "
+            "are applied, lengths in mm):\n"
+            "  1. the iso level half-way between the background and product intensities (the histogram's\n"
+            "     peaks either side of Otsu's threshold), or --level;\n"
+            "  2. the largest object above it; a support or scanner bed touching it is dropped; interior\n"
+            "     cavities (a pepper's hollow, an apple's core) are filled;\n"
+            "  3. marching cubes on the intensity (sub-voxel accurate), one closed surface with outward\n"
+            "     normals; Taubin smoothing (--smoothing) and decimation (--target-vertices).\n\n"
+            "Writes for every VOLUME:\n"
+            "  DIR/<stem>.ply   the surface (binary PLY, mm, world coordinates)\n"
+            "  DIR/<stem>.json  levels, voxel counts, seconds\n"
+            "  DIR/<stem>.png   the surface beside two slices of the volume with its outline on them\n\n"
+            "A volume that cannot be used is reported in one line and skipped (--strict stops); run "
+            "again and volumes already extracted with the same options are not redone."
+        ),
+        epilog=EPILOG,
+        formatter_class=_Formatter,
+    )
+    p.add_argument("volumes", type=Path, nargs="+", metavar="VOLUME", help="volume files or DICOM/TIFF folders")
+    p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder (created if needed)")
+    p.add_argument("--level", type=float, default=None, metavar="L",
+                   help="iso level in the volume's intensity units; when not given, half-way between the "
+                        "background and product intensities")
+    p.add_argument("--target-vertices", type=_positive_int, default=None, metavar="N",
+                   help="decimate each surface to about N vertices; when not given, marching cubes' "
+                        "resolution is kept")
+    p.add_argument("--smoothing", type=int, default=10, metavar="K",
+                   help="Taubin smoothing iterations (0: none); does not shrink the shape")
+    p.add_argument("--keep-support", action="store_true",
+                   help="do not look for a support or scanner bed touching the product")
+    p.add_argument("--no-picture", action="store_true", help="skip the pictures")
+    p.add_argument("--jobs", type=_positive_int, default=1, metavar="J",
+                   help="parallel processes; each holds one volume and about 1.5 times its size")
+    p.add_argument("--strict", action="store_true", help="stop at the first volume that fails")
+    p.set_defaults(run=_run_extract)
+
+
+def _run_extract(args) -> int:
+    from .extract import extract_files
+
+    if args.smoothing < 0:
+        raise HortishapeError(f"--smoothing must be 0 or more iterations, got {args.smoothing}")
+    start = time.perf_counter()
+    results = extract_files(
+        args.volumes, args.out, level=args.level, smoothing=args.smoothing,
+        target_vertices=args.target_vertices, remove_support=not args.keep_support,
+        picture=not args.no_picture, n_jobs=args.jobs, strict=args.strict,
+        progress=_progress(len(args.volumes), "extract", "volume"),
+    )
+    print(f"{'volume':<24}{'vertices':>10}{'mL':>9}{'level':>9}{'seconds':>9}  note")
+    for r in results:
+        if r.ok:
+            note = ("resumed " if r.resumed else "") + (f"{r.n_support_voxels:,} support voxels dropped"
+                                                        if r.n_support_voxels else "")
+            print(f"{r.name:<24}{r.n_vertices:>10,}{r.volume_mm3 / 1000:>9.1f}{r.level:>9.4g}"
+                  f"{r.seconds:>9.1f}  {note.strip()}")
+        else:
+            print(f"hortishape: error: {r.error}", file=sys.stderr)
+    failed = sum(not r.ok for r in results)
+    print(f"extracted {len(results) - failed} of {len(results)} surfaces to {args.out} "
+          f"in {time.perf_counter() - start:.1f} s")
+    return 1 if failed else 0
+
+
+# --------------------------------------------------------------------------
 # register
 # --------------------------------------------------------------------------
 
@@ -265,7 +340,9 @@ def _add_build(sub) -> None:
         epilog=EPILOG,
         formatter_class=_Formatter,
     )
-    p.add_argument("input_dir", type=Path, metavar="INPUT_DIR", help="folder of scans (PLY, STL, OBJ, OFF, VTK, VTP)")
+    p.add_argument("input_dir", type=Path, metavar="INPUT_DIR",
+                   help="folder of scans (PLY, STL, OBJ, OFF, VTK, VTP) or of CT volumes (MHA, MHD, NRRD, "
+                        "NIfTI, TIFF; surfaces extracted first into OUT/surfaces, as by 'hortishape extract')")
     p.add_argument("--out", type=Path, required=True, metavar="OUT", help="output folder")
     p.add_argument("--reference", type=Path, default=None, metavar="FILE",
                    help="the first pass's reference scan (default: the scan nearest the median size)")
@@ -423,8 +500,8 @@ def _add_demo(sub) -> None:
         "demo", help="the whole pipeline on built-in synthetic apples",
         description=("Make a synthetic population of 30 apples (CT-like surfaces of ~100k vertices), build "
                      "their shape model with the paper's settings (30,000-vertex reference, two registration "
-                     "passes, Procrustes, PCA), draw five new apples from it and picture the first modes. "
-                     "Prints where everything is."),
+                     "passes, Procrustes, PCA), draw five new apples from it, picture the first modes and "
+                     "evaluate the model (the HTML report of 'hortishape evaluate'). Prints where everything is."),
         epilog=EPILOG, formatter_class=_Formatter)
     p.add_argument("--out", type=Path, default=Path("hortishape-demo"), metavar="DIR", help="output folder")
     p.add_argument("--product", default="apple", choices=["apple", "pepper", "zucchini", "pear", "banana"],
@@ -443,6 +520,9 @@ def _run_demo(args) -> int:
                  n_jobs=args.jobs, progress=_stage_progress)
     _print_build(r.build)
     print()
+    print("evaluation:")
+    _print_evaluation(r.evaluation)
+    print()
     print(f"demo done in {r.seconds:.0f} s; everything is in {r.out_dir}:")
     print(f"  scans with ground truth   {r.scans}/")
     print(f"  the model                 {r.build.model_path}")
@@ -450,6 +530,207 @@ def _run_demo(args) -> int:
     print(f"  five new {args.product}s{' ' * max(0, 12 - len(args.product))}   {r.samples_picture.parent}/ "
           f"(picture: {r.samples_picture})")
     print(f"  shape modes (Fig. 7)      {r.modes_picture}")
+    print(f"  quality report            {r.report} (metrics.json, metrics.csv beside it)")
+    return 0
+
+
+# --------------------------------------------------------------------------
+# cad
+# --------------------------------------------------------------------------
+
+
+def _add_cad(sub) -> None:
+    p = sub.add_parser(
+        "cad", help="export the mean or any model instance as a B-spline surface (STEP, IGES, JSON)",
+        description=(
+            "Describe a shape-model instance with CAD primitives (paper section 2.2.4, Fig. 9): the model's "
+            "mean is opened at its poles (stalk and bottom, found automatically or given with --stalk and "
+            "--bottom) and mapped one-to-one onto a cylinder; every instance shares that (u, v), so its "
+            "bicubic B-spline (periodic around, closed at both poles, GRID x GRID control points) is a linear "
+            "function of its shape coefficients. Writes each --out by its extension: .step/.stp (a solid) and "
+            ".iges/.igs (the face) through OpenCascade (pip install 'hortishape[cad]'), .json (control points "
+            "and knots).\n\n"
+            "Instances: the mean (default), --instance sample (random, --seed), --coefficients C1 C2 ... "
+            "(standard deviations), --mode M --sd K (mean + K SD along mode M), --scan FILE (fit a new scan, "
+            "exported in the scan's coordinates)."
+        ),
+        epilog=EPILOG, formatter_class=_Formatter)
+    p.add_argument("model", type=Path, metavar="MODEL", help="model file (model.h5)")
+    p.add_argument("--out", type=Path, action="append", required=True, metavar="FILE",
+                   help="output file (.step, .stp, .iges, .igs or .json); repeat for several")
+    p.add_argument("--grid", type=_positive_int, default=32, metavar="K",
+                   help="K x K control points (at least 4; the paper: 4, 8, 16, 32)")
+    p.add_argument("--instance", choices=["mean", "sample", "coefficients", "mode", "scan"], default=None,
+                   help="which instance (default: from the options given, else the mean)")
+    p.add_argument("--coefficients", type=float, nargs="+", default=None, metavar="C",
+                   help="shape coefficients of the first modes, in standard deviations")
+    p.add_argument("--mode", type=_positive_int, default=None, metavar="M", help="mode to move along (1 = first)")
+    p.add_argument("--sd", type=float, default=3.0, metavar="K", help="standard deviations along --mode")
+    p.add_argument("--seed", type=int, default=None, help="random seed of --instance sample")
+    p.add_argument("--modes", type=_positive_int, default=5, help="modes varied by --instance sample")
+    p.add_argument("--scan", type=Path, default=None, metavar="FILE",
+                   help="a new scan to fit (registration of the mean, then eq. 13)")
+    p.add_argument("--stalk", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
+                   help="stalk pole landmark on the mean, mm (default: automatic)")
+    p.add_argument("--bottom", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
+                   help="bottom pole landmark on the mean, mm (default: automatic)")
+    p.add_argument("--picture", type=Path, default=None, metavar="PNG",
+                   help="also picture the B-spline coloured by its distance to the instance's triangle surface")
+    p.set_defaults(run=_run_cad)
+
+
+def _cad_instance_kind(args) -> str:
+    given = [name for name, on in (("coefficients", args.coefficients is not None), ("mode", args.mode is not None),
+                                   ("scan", args.scan is not None)) if on]
+    if len(given) > 1:
+        raise HortishapeError(f"give only one of --coefficients, --mode and --scan (got {', '.join(given)})")
+    kind = args.instance or (given[0] if given else "mean")
+    if given and given[0] != kind:
+        raise HortishapeError(f"--instance {kind} does not go with --{given[0]}")
+    if kind in ("coefficients", "mode", "scan") and not given:
+        option = {"coefficients": "--coefficients C1 C2 ...", "mode": "--mode M", "scan": "--scan FILE"}[kind]
+        raise HortishapeError(f"--instance {kind} needs {option}")
+    return kind
+
+
+def _run_cad(args) -> int:
+    import numpy as np
+
+    from .cad import BSplineModel, find_poles, render_deviation, surface_deviation, write_cad
+
+    kind = _cad_instance_kind(args)
+    for out in args.out:
+        if out.suffix.lower() not in (".step", ".stp", ".iges", ".igs", ".json"):
+            raise HortishapeError(f"{out}: the output must end in .step, .stp, .iges, .igs or .json")
+    model = _load_model(args.model)
+    if model.faces_ is None:
+        raise HortishapeError(f"{args.model}: the model has no triangles; a CAD surface needs them")
+    start = time.perf_counter()
+    poles = find_poles(model.mean_, model.faces_, stalk=args.stalk, bottom=args.bottom)
+    cad = BSplineModel(args.grid, poles=poles).fit(model)
+    cmap = cad.parameterization_
+    print(f"parameterization of the mean: {cmap.n_flipped} flipped triangles; poles: stalk "
+          f"{np.round(model.mean_[cmap.stalk], 1).tolist()}, bottom {np.round(model.mean_[cmap.bottom], 1).tolist()} "
+          f"mm ({time.perf_counter() - start:.1f} s with the {args.grid} x {args.grid} operator)")
+
+    pose = None
+    if kind == "mean":
+        coefficients, label = np.zeros(0), "the mean"
+    elif kind == "sample":
+        coefficients = model.sample_coefficients(1, modes=args.modes, random_state=args.seed)[0]
+        label = f"a random sample (seed {args.seed})"
+    elif kind == "coefficients":
+        coefficients, label = np.asarray(args.coefficients), "the given coefficients"
+    elif kind == "mode":
+        if args.mode > model.n_components_:
+            raise HortishapeError(f"--mode {args.mode}: the model has {model.n_components_} modes")
+        coefficients = np.zeros(args.mode)
+        coefficients[-1] = args.sd
+        label = f"mode {args.mode} {args.sd:+g} SD"
+    else:
+        from .io import read_mesh
+        from .pipeline import fit_scan
+
+        fit = fit_scan(model, read_mesh(args.scan))
+        coefficients, pose = fit.coefficients, fit.pose
+        label = f"the fit of {args.scan} (Mahalanobis {fit.mahalanobis:.2f} SD, in the scan's coordinates)"
+    try:
+        surface = cad.instance(coefficients) if coefficients.size else cad.mean_
+    except ValueError as exc:
+        raise HortishapeError(str(exc)) from None
+    triangles = model.instance(coefficients) if coefficients.size else model.mean_
+    if pose is not None:
+        surface = surface.transformed(pose)
+        triangles = triangles @ pose[:3, :3].T + pose[:3, 3]
+    if coefficients.size:
+        shown = " ".join(f"{c:+.2f}" for c in coefficients[:10])
+        print(f"instance: {label}; coefficients (SD): {shown}")
+    else:
+        print(f"instance: {label}")
+    dev = surface_deviation(surface, triangles, model.faces_)
+    print(f"{args.grid} x {args.grid} B-spline vs the instance's triangle surface: mean {dev.mean:.4f} mm, "
+          f"max {dev.max:.3f} mm (B-spline to triangles: max {dev.back_max:.3f} mm)")
+    print(f"storage per surface: {surface.nbytes / 1024:.1f} kB of control points "
+          f"(triangle model: {model.n_points_ * 24 / 1024:.0f} kB of vertices)")
+    for out in args.out:
+        path = write_cad(out, surface)
+        print(f"wrote {path} ({path.stat().st_size / 1024:.0f} kB)")
+    if args.picture:
+        pic = render_deviation(surface, triangles, model.faces_, args.picture,
+                               title=f"{args.grid} x {args.grid} control points")
+        print(f"wrote {pic}")
+    return 0
+
+
+# --------------------------------------------------------------------------
+# evaluate
+# --------------------------------------------------------------------------
+
+
+def _add_evaluate(sub) -> None:
+    p = sub.add_parser(
+        "evaluate", help="measure a built model's quality and write an HTML report",
+        description=(
+            "Measure the quality of the model in OUT (what 'hortishape build' wrote), paper section 3.4:\n"
+            "  compactness C(m)      cumulative variance of the first m modes (eq. 14, Fig. 10)\n"
+            "  generalization G(m)   leave-one-out: a model of the others describes each instance with m modes\n"
+            "                        (eq. 15, Fig. 11)\n"
+            "  specificity S(m)      random shapes of the model vs. their nearest training shape (eq. 16, Fig. 12)\n"
+            "each for m = 1 .. M, as mean distance per vertex (mm) and as the paper's squared norms (mm^2);\n"
+            "the geometric error map of the registered surfaces against their scans (Fig. 6, Table 2),\n"
+            "landmark transfer errors (Table 3) and the population's dimensions (Table 1).\n\n"
+            "Writes OUT/evaluation/: report.html (one self-contained page), metrics.json and metrics.csv,\n"
+            "error_map.ply / .vtk / .png, and the plots as PNG.\n\n"
+            "Landmarks (--landmarks, in each scan's coordinates, mm): a JSON file {stem: {name: [x, y, z]}},\n"
+            "a CSV file with the columns instance,landmark,x,y,z, or a folder of <stem>.truth.json files;\n"
+            "by default the <stem>.truth.json files beside the scans (what 'hortishape synth' writes), if any.\n"
+            "Each is marked on the mean (the average of the given markers' places), carried to every\n"
+            "instance through the correspondence and compared with the given position."
+        ),
+        epilog=EPILOG, formatter_class=_Formatter)
+    p.add_argument("out", type=Path, metavar="OUT", help="a built model directory (with model.h5, summary.json)")
+    p.add_argument("--landmarks", type=Path, default=None, metavar="FILE_OR_DIR",
+                   help="landmark positions per instance (default: <stem>.truth.json beside the scans)")
+    p.add_argument("--modes", type=_positive_int, default=None, metavar="M",
+                   help="evaluate m = 1 .. M (default and largest: N - 2 for N instances, at most the model's modes)")
+    p.add_argument("--samples", type=_positive_int, default=200, metavar="S",
+                   help="random shapes per m for the specificity")
+    p.add_argument("--scans", type=Path, default=None, metavar="DIR",
+                   help="folder of the scans, if they are no longer where the build read them")
+    p.add_argument("--seed", type=int, default=0, help="random seed of the specificity's random shapes")
+    p.set_defaults(run=_run_evaluate)
+
+
+def _print_evaluation(ev) -> None:
+    c, g, s, d = ev.compactness, ev.generalization, ev.specificity, ev.dimensions
+    print(f"{len(ev.names)} instances, {ev.n_points:,} vertices; G and S: mean distance per vertex (mm) +/- standard "
+          "error, and the paper's squared norms (eqs. 15-16, mm^2)")
+    print(f"{'m':>3}{'C(m) %':>9}{'G mm':>9}{'+/- se':>8}{'G eq.15':>11}{'S mm':>9}{'+/- se':>8}{'S eq.16':>11}")
+    for j, m in enumerate(c.modes):
+        print(f"{m:>3}{100 * c.ratio[j]:>9.2f}{g.mean_mm[j]:>9.3f}{g.se_mm[j]:>8.3f}{g.mean_sq[j]:>11,.1f}"
+              f"{s.mean_mm[j]:>9.3f}{s.se_mm[j]:>8.3f}{s.mean_sq[j]:>11,.1f}")
+    dims = ", ".join(f"{k} {m:.1f} +/- {sd:.1f}" for k, m, sd in zip(("width", "depth", "height"), d.mean, d.sd))
+    print(f"dimensions (mm, Table 1): {dims} (height with stalk {d.overall_height.mean():.1f})")
+    ge = ev.geometric_error
+    if ge is not None:
+        print(f"geometric error (mm, Table 2): {ge.mean_mm:.4f} +/- {ge.sd_mm:.4f} over {len(ge.names)} instances, "
+              f"map maximum {ge.per_vertex_mm.max():.3f}")
+    t = ev.landmarks
+    if t is not None:
+        errs = ", ".join(f"{k} {m:.2f} +/- {sd:.2f} (n = {n})" for k, (m, sd, _, n) in t.summary().items())
+        print(f"landmark transfer error (mm, Table 3): {errs}")
+    for note in ev.notes:
+        print(f"note: {note}")
+    if ev.files:
+        print(f"wrote {ev.files['report']} (and metrics.json, metrics.csv, pictures) in {ev.seconds:.1f} s")
+
+
+def _run_evaluate(args) -> int:
+    from .evaluate import evaluate_model
+
+    ev = evaluate_model(args.out, landmarks=args.landmarks, modes=args.modes, n_samples=args.samples,
+                        scans=args.scans, random_state=args.seed, progress=_stage_progress)
+    _print_evaluation(ev)
     return 0
 
 
@@ -477,7 +758,8 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-_COMMANDS = [_add_demo, _add_synth, _add_register, _add_build, _add_sample, _add_modes, _add_fit]
+_COMMANDS = [_add_demo, _add_synth, _add_extract, _add_register, _add_build, _add_sample, _add_modes, _add_fit, _add_cad,
+             _add_evaluate]
 
 
 def main(argv: Sequence[str] | None = None) -> int:
