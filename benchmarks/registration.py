@@ -47,13 +47,23 @@ PAPER_N = {"apple": 30000, "pepper": 40000, "zucchini": 13000, "pear": 30000, "b
 PAPER_GEOM = {"apple": 0.015, "pepper": 0.106, "zucchini": 0.027}
 
 
+def _synth_digest() -> str:
+    """A digest of the generator's source: a cache made by another version is not reused."""
+    import hashlib
+
+    from hortishape import synth
+
+    return hashlib.sha256(Path(synth.__file__).read_bytes()).hexdigest()[:10]
+
+
 def make_cases(product, pose, n, cache: Path):
     """Synthetic instances saved as npz (so the worker's memory is only the registration's)."""
     from hortishape import synth
 
     out = []
+    digest = _synth_digest()
     for i in range(n):
-        fn = cache / f"{product}_{pose}_{i}.npz"
+        fn = cache / f"{product}_{pose}_{i}_{digest}.npz"
         if not fn.exists():
             inst = synth.make_instance(product, random_state=1000 + i, pose=pose)
             np.savez(
