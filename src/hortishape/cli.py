@@ -213,6 +213,9 @@ def _add_registration_options(p) -> None:
     g.add_argument("--orientation", choices=["search", "pca", "none"], default="search",
                    help="initial alignment: try all principal-axis rotations and keep the best after a "
                         "short elastic fit (search), the paper's eq. 7 alone (pca), or none")
+    g.add_argument("--warp", choices=["affine", "quadratic", "none"], default="affine",
+                   help="the initializing global step before the elastic ones: affine (the paper's), "
+                        "quadratic (also taper and bend: long, curved products), or none")
 
 
 def _registration_config(args):
@@ -222,7 +225,7 @@ def _registration_config(args):
         return RegistrationConfig(
             n_iterations=args.iterations, beta_start=args.stiffness[0], beta_end=args.stiffness[1],
             max_angle=args.max_angle, distance_factor=args.distance_factor, tolerance=args.tolerance,
-            max_iterations=max(50, args.iterations + 20), orientation=args.orientation,
+            max_iterations=max(50, args.iterations + 20), orientation=args.orientation, warp=args.warp,
         )
     except ValueError as exc:
         raise HortishapeError(str(exc)) from None

@@ -20,7 +20,7 @@ import time
 import traceback
 import warnings
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Callable, Iterable, Sequence
 
@@ -31,7 +31,7 @@ from .io import atomic_path, is_mesh_file, mesh_formats, read_mesh, write_mesh
 from .mesh import Mesh
 from .register import Registration, RegistrationConfig, Template, prepare_reference, register
 
-__all__ = ["InstanceResult", "find_meshes", "register_files", "template_fingerprint"]
+__all__ = ["InstanceResult", "find_meshes", "find_scans", "register_files", "template_fingerprint"]
 
 Progress = Callable[[Iterable], Iterable]
 
@@ -94,6 +94,49 @@ def find_meshes(folder) -> list[Path]:
     if not files:
         raise HortishapeError(f"{folder}: no mesh files (looked for {', '.join(mesh_formats())})")
     return files
+
+
+def find_scans(folder, out_dir, *, n_jobs: int | None = None, strict: bool = False,
+               progress: Callable[[int, str], Progress] | None = None) -> tuple[list[Path], list[tuple[str, str]]]:
+    """The scans in ``folder``: its mesh files and the surfaces of its CT volumes.
+
+    Volumes (:func:`hortishape.extract.find_volumes`: MHA/MHD, NRRD, NIfTI,
+    TIFF, DICOM or TIFF-slice folders) are extracted first, with the default
+    settings, into ``out_dir/surfaces/<stem>.ply``
+    (:func:`hortishape.extract.extract_files`); a volume already extracted
+    from the same bytes is not redone.
+
+    Returns
+    -------
+    paths : list of Path
+        Mesh files and extracted surfaces, sorted by name.
+    failed : list of (str, str)
+        ``(volume, reason)`` of every volume whose extraction failed.
+
+    Raises
+    ------
+    HortishapeError
+        If ``folder`` is not a folder or holds neither meshes nor volumes; with
+        ``strict``, for the first volume that fails.
+    """
+    from .extract import extract_files, find_volumes
+    from .io import volume_formats
+
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise HortishapeError(f"{folder}: not a folder")
+    files = [p for p in folder.iterdir() if p.is_file() and is_mesh_file(p)]
+    volumes = find_volumes(folder)
+    if not files and not volumes:
+        raise HortishapeError(f"{folder}: no mesh files or volumes (looked for "
+                              f"{', '.join(mesh_formats() + volume_formats())})")
+    failed = []
+    if volumes:
+        results = extract_files(volumes, Path(out_dir) / "surfaces", n_jobs=n_jobs, strict=strict,
+                                progress=_stage(progress, len(volumes), "extract"))
+        files += [Path(r.mesh) for r in results if r.ok]
+        failed = [(r.source, r.error) for r in results if not r.ok]
+    return sorted(files, key=lambda p: p.name), failed
 
 
 def template_fingerprint(template: Template, config: RegistrationConfig) -> str:
@@ -168,15 +211,25 @@ def registration_log(reg: Registration, *, source: Path, fingerprint: str, diges
             "kept_fraction": float(last.kept_fraction),
             "orientation_index": int(reg.orientation_index),
         },
+        "orientation_scores": np.asarray(reg.orientation_scores).tolist(),
         "transform": np.asarray(reg.transform).tolist(),
         "iterations": [asdict(r) for r in reg.log],
     }
 
 
+def _job_fingerprint(fingerprint: str, initial_transform) -> str:
+    """The pass's fingerprint, extended by the scan's own starting transform if it has one."""
+    if initial_transform is None:
+        return fingerprint
+    t = np.ascontiguousarray(np.asarray(initial_transform, dtype=np.float64))
+    return hashlib.sha256(fingerprint.encode() + t.tobytes()).hexdigest()
+
+
 def _register_file(job) -> InstanceResult:
-    source, out_dir = job
+    source, out_dir, initial_transform = job
     source, out_dir = Path(source), Path(out_dir)
-    template, config, fingerprint = _WORKER["template"], _WORKER["config"], _WORKER["fingerprint"]
+    template, config = _WORKER["template"], _WORKER["config"]
+    fingerprint = _job_fingerprint(_WORKER["fingerprint"], initial_transform)
     try:
         digest = _file_digest(source)
         done = _done_before(source, out_dir, fingerprint, digest)
@@ -185,7 +238,7 @@ def _register_file(job) -> InstanceResult:
         target = read_mesh(source)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", ConvergenceWarning)  # reported as converged=False
-            reg = register(template, target, config)
+            reg = register(template, target, config, initial_transform=initial_transform)
         from .surface import closest_points
 
         geometric = float(closest_points(target, reg.vertices).distances.mean())
@@ -221,6 +274,7 @@ def register_files(
     n_jobs: int | None = None,
     strict: bool = False,
     progress: Progress | None = None,
+    initial_transforms: Sequence | None = None,
 ) -> list[InstanceResult]:
     """Register ``reference`` to every scan file and write the results.
 
@@ -247,6 +301,9 @@ def register_files(
         Stop at the first scan that fails instead of skipping it.
     progress : callable, optional
         Wraps the iterator of finished scans (e.g. ``tqdm``).
+    initial_transforms : sequence of (4, 4) array_like or None, optional
+        Per scan, a reference -> scan transform to start from instead of
+        searching the orientation (``None`` entries search).
 
     Returns
     -------
@@ -269,7 +326,11 @@ def register_files(
     template = reference if isinstance(reference, Template) else prepare_reference(reference)
     cfg = config if config is not None else RegistrationConfig()
     fingerprint = template_fingerprint(template, cfg)
-    jobs = [(str(t), str(out_dir)) for t in targets]
+    starts = list(initial_transforms) if initial_transforms is not None else [None] * len(targets)
+    if len(starts) != len(targets):
+        raise ValueError(f"{len(starts)} initial transforms for {len(targets)} scans")
+    jobs = [(str(t), str(out_dir), None if a is None else np.asarray(a, dtype=np.float64).reshape(4, 4))
+            for t, a in zip(targets, starts)]
     results: list[InstanceResult | None] = [None] * len(jobs)
     wrap = progress or (lambda it: it)
     n_jobs = max(1, min(n_jobs or os.cpu_count() or 1, len(jobs)))
@@ -448,7 +509,9 @@ def build_model(
     Parameters
     ----------
     input_dir : path
-        Folder of scan meshes (PLY, STL, OBJ, OFF, VTK, VTP), in mm.
+        Folder of scan meshes (PLY, STL, OBJ, OFF, VTK, VTP), in mm, or of CT
+        volumes, whose surfaces are extracted first into
+        ``out_dir/surfaces`` (:func:`find_scans`).
     out_dir : path
     reference : path, optional
         The first pass's reference scan (default: the scan nearest the median size).
@@ -482,9 +545,9 @@ def build_model(
 
     start = time.perf_counter()
     out = Path(out_dir)
-    files = find_meshes(input_dir)
+    files, failed = find_scans(input_dir, out, n_jobs=n_jobs, strict=strict, progress=progress)
     checks = check_scans(files)
-    skipped = [(c.path, c.error) for c in checks if not c.ok]
+    skipped = failed + [(c.path, c.error) for c in checks if not c.ok]
     if strict and skipped:
         raise HortishapeError(skipped[0][1])
     usable = [Path(c.path) for c in checks if c.ok]
@@ -501,9 +564,9 @@ def build_model(
     ref_mesh = read_mesh(ref_path)
     cfg = config if config is not None else RegistrationConfig()
 
-    def run_pass(template: Template, folder: Path, desc: str, paths: list[Path]) -> list[InstanceResult]:
+    def run_pass(template: Template, folder: Path, desc: str, paths: list[Path], starts=None) -> list[InstanceResult]:
         results = register_files(template, paths, folder, config=cfg, n_jobs=n_jobs, strict=strict,
-                                 progress=_stage(progress, len(paths), desc))
+                                 progress=_stage(progress, len(paths), desc), initial_transforms=starts)
         for r in results:
             if not r.ok:
                 skipped.append((r.source, r.error))
@@ -513,12 +576,25 @@ def build_model(
     first = run_pass(template, out / "work" / "first-pass", "registration 1/2", usable)
     good = [Path(r.source) for r in first if r.ok]
     _need_three(good, input_dir)
+    first_files = {p: out / "work" / "first-pass" / f"{p.stem}.ply" for p in good}
+    rechecked = _orientation_consensus(
+        first_files, out / "work", lambda paths, folder, c: register_files(
+            template, paths, folder, config=c, n_jobs=n_jobs,
+            progress=_stage(progress, len(paths), "orientation check")),
+        cfg, scaling=scaling,
+    )
 
     # the second pass: the mean of the first pass as an unbiased template
-    shapes = np.stack([read_mesh(out / "work" / "first-pass" / f"{p.stem}.ply").vertices for p in good])
-    mean = generalized_procrustes(shapes, scaling=scaling).mean
-    template2 = prepare_reference(Mesh(mean, template.mesh.faces), None)
-    second = run_pass(template2, out / "registered", "registration 2/2", good)
+    shapes = np.stack([read_mesh(first_files[p]).vertices for p in good])
+    gpa1 = generalized_procrustes(shapes, scaling=scaling)
+    template2 = prepare_reference(Mesh(gpa1.mean, template.mesh.faces), None)
+    # The mean lies in the Procrustes frame, where each first-pass surface was
+    # moved by its transform: the inverse places the mean on that scan exactly
+    # as the first pass found it, so the second pass does not search the
+    # orientation again (a mean is rounder than any one scan, and harder to
+    # orient).
+    starts = [np.linalg.inv(t) for t in gpa1.transforms]
+    second = run_pass(template2, out / "registered", "registration 2/2", good, starts)
     good = [Path(r.source) for r in second if r.ok]
     _need_three(good, input_dir)
 
@@ -541,6 +617,7 @@ def build_model(
         "instances": names,
         "skipped": [{"path": p, "reason": e} for p, e in skipped],
         "first_pass": [asdict(r) for r in first],
+        "orientation_check": rechecked,
         "second_pass": [asdict(r) for r in second],
         "procrustes": {"scaling": scaling, "iterations": int(gpa.n_iter)},
         "model": {
@@ -553,6 +630,79 @@ def build_model(
     _atomic_text(out / "summary.json", json.dumps(_jsonable(summary), indent=1))
     return BuildResult(out, model_path, str(ref_path), tuple(names), tuple(skipped), tuple(first),
                        tuple(second), model.explained_variance_, model.n_points_, seconds)
+
+
+#: A first-pass registration is registered again from the search's runner-up
+#: when the runner-up scored within this fraction of the winner (a near tie:
+#: measured on peppers, the right lobe and the next one 90 degrees away
+#: scored within 2-5 %) ...
+CLOSE_CALL = 0.05
+#: ... or when its surface lies farther from the mean of the others than the
+#: median plus this many robust standard deviations (MAD * 1.4826).
+OUTLIER_SD = 3.0
+
+
+def _orientation_consensus(files: dict, work: Path, register_paths, cfg: RegistrationConfig, *,
+                           scaling: bool = False) -> list[dict]:
+    """Let the population overrule a close or outlying orientation choice (in place on ``files``).
+
+    A single registration has only the scan to judge its initial orientation
+    by, and on a near-symmetric fruit (a round apple, a pepper's lobes) the
+    best and second-best candidates can score alike. The population knows
+    better: a surface registered in the wrong orientation stands out from
+    the others once all are Procrustes-aligned. Suspects (a close call in
+    the search, or an outlier) are registered again from the runner-up
+    candidate (``orientation_rank=1``, into ``work/first-pass-rank1``), and
+    whichever result lies closer to the mean of the other surfaces is kept.
+
+    Returns one record per suspect: name, why, both distances (mm RMS) and
+    which was kept.
+    """
+    from .procrustes import generalized_procrustes, procrustes_align
+
+    paths = list(files)
+    if len(paths) < 4 or cfg.orientation != "search":
+        return []
+    shapes = np.stack([read_mesh(files[p]).vertices for p in paths])
+    gpa = generalized_procrustes(shapes, scaling=scaling)
+    n = len(paths)
+    others = (n * gpa.mean[None] - gpa.aligned) / (n - 1)  # the mean of the others, per shape
+
+    def distance(shape: np.ndarray, i: int) -> float:
+        aligned, _ = procrustes_align(shape, others[i], scaling=scaling)
+        return float(np.sqrt(((aligned - others[i]) ** 2).sum(axis=1).mean()))
+
+    dist = np.array([distance(gpa.aligned[i], i) for i in range(n)])
+    med = float(np.median(dist))
+    limit = med + OUTLIER_SD * 1.4826 * float(np.median(np.abs(dist - med)))
+    suspects = {}
+    for i, p in enumerate(paths):
+        try:
+            log = json.loads(files[p].with_suffix(".json").read_text())
+        except (OSError, ValueError):
+            log = {}
+        scores = np.sort(np.asarray(log.get("orientation_scores") or [], dtype=np.float64))
+        close = len(scores) > 1 and scores[1] - scores[0] <= CLOSE_CALL * scores[0]
+        if close or dist[i] > limit:
+            suspects[i] = "close call" if close else "outlier"
+    if not suspects:
+        return []
+    folder = work / "first-pass-rank1"
+    idx = sorted(suspects)
+    results = register_paths([paths[i] for i in idx], folder, replace(cfg, orientation_rank=1))
+    records = []
+    for i, res in zip(idx, results):
+        rec = {"name": paths[i].stem, "why": suspects[i], "distance_mm": dist[i], "runner_up_distance_mm": None,
+               "kept": "first"}
+        if res.ok:
+            alt = folder / f"{paths[i].stem}.ply"
+            d_alt = distance(read_mesh(alt).vertices, i)
+            rec["runner_up_distance_mm"] = d_alt
+            if d_alt < dist[i]:
+                files[paths[i]] = alt
+                rec["kept"] = "runner-up"
+        records.append(rec)
+    return records
 
 
 def _jsonable(value):
