@@ -1,6 +1,7 @@
 """Batch registration over files: outputs, resume, bad scans, --strict."""
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -91,3 +92,76 @@ def test_find_meshes(scans, tmp_path):
         find_meshes(tmp_path)
     with pytest.raises(HortishapeError, match="not a folder"):
         find_meshes(tmp_path / "missing")
+
+
+def test_initial_transforms_skip_the_search_and_are_part_of_the_fingerprint(scans, template, tmp_path):
+    targets = [scans / "apple_001.ply"]
+    searched = register_files(template, targets, tmp_path / "a", config=CONFIG, n_jobs=1)
+    log = json.loads((tmp_path / "a" / "apple_001.json").read_text())
+    assert len(log["orientation_scores"]) == 24
+    start = np.asarray(log["transform"])
+    started = register_files(template, targets, tmp_path / "b", config=CONFIG, n_jobs=1, initial_transforms=[start])
+    log_b = json.loads((tmp_path / "b" / "apple_001.json").read_text())
+    assert log_b["orientation_scores"] == [] and log_b["summary"]["orientation_index"] == -1
+    # started from the searched result's rigid pose: the same orientation (the
+    # logged transform is the end pose, not the search's start, so the two
+    # differ a little: measured 1.0 mm; a wrong orientation is tens of mm)
+    a, b = read_mesh(tmp_path / "a" / "apple_001.ply"), read_mesh(tmp_path / "b" / "apple_001.ply")
+    assert np.linalg.norm(a.vertices - b.vertices, axis=1).mean() < 2.0
+    assert started[0].ok and searched[0].ok
+    # another start is another result, the same start is resumed
+    moved = start.copy()
+    moved[:3, 3] += 1.0
+    assert not register_files(template, targets, tmp_path / "b", config=CONFIG, initial_transforms=[moved])[0].resumed
+    assert register_files(template, targets, tmp_path / "b", config=CONFIG, initial_transforms=[moved])[0].resumed
+    with pytest.raises(ValueError, match="initial transforms"):
+        register_files(template, targets, tmp_path / "c", config=CONFIG, initial_transforms=[start, start])
+
+
+def test_orientation_rank_starts_from_the_runner_up(scans, template, tmp_path):
+    targets = [scans / "apple_001.ply"]
+    register_files(template, targets, tmp_path / "r0", config=CONFIG, n_jobs=1)
+    register_files(template, targets, tmp_path / "r1", config=replace(CONFIG, orientation_rank=1), n_jobs=1)
+    r0, r1 = (json.loads((tmp_path / d / "apple_001.json").read_text()) for d in ("r0", "r1"))
+    order = np.argsort(r0["orientation_scores"], kind="stable")
+    assert r0["summary"]["orientation_index"] == order[0]
+    assert r1["summary"]["orientation_index"] == order[1]
+
+
+def test_orientation_consensus_keeps_the_registration_that_agrees_with_the_others(scans, template, tmp_path):
+    # five registrations of apples, one of them deliberately started upside
+    # down (an outlier): the check registers that one again from the search's
+    # runner-up and keeps whichever lies nearer the others' mean
+    from hortishape.align import rotation_about, rigid_transform
+    from hortishape.pipeline import _orientation_consensus
+
+    extra = tmp_path / "more"
+    synth.write_population("apple", 6, extra, random_state=4, pose="upright", n_vertices=12000, n_jobs=1)
+    targets = sorted(extra.glob("apple_00[1-5].ply"))
+    first = tmp_path / "first-pass"
+    register_files(template, targets[:-1], first, config=CONFIG, n_jobs=2)
+    bad = targets[-1]
+    flip = rigid_transform(rotation_about([1.0, 0.0, 0.0], np.pi), [0.0, 0.0, 0.0])
+    mesh = read_mesh(bad)
+    c = mesh.vertices.mean(axis=0)
+    upside_down = rigid_transform(np.eye(3), c) @ flip @ rigid_transform(np.eye(3), -template.mesh.vertices.mean(axis=0))
+    register_files(template, [bad], first, config=CONFIG, initial_transforms=[upside_down])
+    # the search's scores as logged: a clear choice for the others, a close
+    # call for the bad one
+    for p in targets:
+        log_path = first / f"{p.stem}.json"
+        log = json.loads(log_path.read_text())
+        log["orientation_scores"] = [1.0, 1.01 if p == bad else 1.5] + [2.0] * 22
+        log_path.write_text(json.dumps(log))
+    files = {p: first / f"{p.stem}.ply" for p in targets}
+    calls = []
+
+    def again(paths, folder, cfg):
+        calls.append([p.stem for p in paths])
+        return register_files(template, paths, folder, config=cfg, n_jobs=1)
+
+    records = _orientation_consensus(files, tmp_path, again, CONFIG)
+    assert [bad.stem] in calls
+    rec = {r["name"]: r for r in records}[bad.stem]
+    assert rec["kept"] == "runner-up" and rec["runner_up_distance_mm"] < rec["distance_mm"]
+    assert files[bad] == tmp_path / "first-pass-rank1" / f"{bad.stem}.ply"
