@@ -530,7 +530,7 @@ def _run_demo(args) -> int:
     print(f"  scans with ground truth   {r.scans}/")
     print(f"  the model                 {r.build.model_path}")
     print(f"  corresponded surfaces     {r.build.out_dir / 'registered'}/")
-    print(f"  five new {args.product}s{' ' * max(0, 12 - len(args.product))}   {r.samples_picture.parent}/ "
+    print(f"  {'five new ' + args.product + 's':<26}{r.samples_picture.parent}/ "
           f"(picture: {r.samples_picture})")
     print(f"  shape modes (Fig. 7)      {r.modes_picture}")
     print(f"  quality report            {r.report} (metrics.json, metrics.csv beside it)")
