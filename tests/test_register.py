@@ -144,6 +144,7 @@ def test_bad_inputs(template, dense):
         RegistrationConfig(affine="projective")
     with pytest.raises(ValueError, match="warp"):
         RegistrationConfig(warp="cubic")
+    assert RegistrationConfig().warp == "auto"
     with pytest.raises(ValueError, match="orientation_rank"):
         RegistrationConfig(orientation_rank=-1)
     with pytest.raises(ValueError, match="twists"):
@@ -218,3 +219,14 @@ def test_twist_candidates_keep_a_right_answer(template, dense):
     reg = register(template, target, RegistrationConfig(twists=4))
     assert len(reg.orientation_scores) == 24 + 3  # the winner's 3 other quarter turns
     np.testing.assert_allclose(reg.transform[:3, :3], r, atol=2e-3)
+
+
+def test_auto_warp_is_quadratic_for_elongated_references_only():
+    from hortishape.register import _warp_degree
+
+    rng = np.random.default_rng(0)
+    ball = rng.normal(size=(2000, 3)) * [40.0, 39.0, 42.0]  # an apple: 1.0-1.1
+    long = rng.normal(size=(2000, 3)) * [35.0, 30.0, 130.0]  # a zucchini: 3.7
+    assert _warp_degree("auto", ball) == 1
+    assert _warp_degree("auto", long) == 2
+    assert [_warp_degree(w, long) for w in ("none", "affine", "quadratic")] == [0, 1, 2]

@@ -213,9 +213,10 @@ def _add_registration_options(p) -> None:
     g.add_argument("--orientation", choices=["search", "pca", "none"], default="search",
                    help="initial alignment: try all principal-axis rotations and keep the best after a "
                         "short elastic fit (search), the paper's eq. 7 alone (pca), or none")
-    g.add_argument("--warp", choices=["affine", "quadratic", "none"], default="affine",
+    g.add_argument("--warp", choices=["auto", "affine", "quadratic", "none"], default="auto",
                    help="the initializing global step before the elastic ones: affine (the paper's), "
-                        "quadratic (also taper and bend: long, curved products), or none")
+                        "quadratic (also taper and bend), auto (quadratic for elongated references such "
+                        "as zucchini, banana or pear, affine for round ones), or none")
 
 
 def _registration_config(args):

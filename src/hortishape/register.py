@@ -113,6 +113,14 @@ COARSE_MIN_BETA = 1.0
 #: 0.06 mm without it.
 WARP_MIN_GAIN = 0.005
 
+#: ``warp="auto"`` takes the quadratic warp for a reference whose longest
+#: principal axis is at least this many times the next (standard deviations).
+#: Measured with ``benchmarks/registration.py`` (4 upright targets per class),
+#: quadratic against affine: zucchini 49 -> 24 mm dense error, banana 3.0 ->
+#: 1.8 mm, pear median 3.9 -> 1.3 mm; but pepper median 1.9 -> 5.3 mm (on a
+#: round fruit the second-order terms are barely seen and slide the surface).
+ELONGATED = 1.5
+
 #: Largest turn (degrees) the rigid refinement after the orientation search
 #: may make; the search's candidates lie within about 25 degrees of the truth
 #: when right (measured on apples and peppers), neighbouring lobes 90 apart.
@@ -173,7 +181,7 @@ class RegistrationConfig:
         fits that would reflect or squash the surface (a singular value
         outside [1/3, 3]) fall back to rigid. ``"stiff"`` doubled the
         apples' dense correspondence error (``benchmarks/registration.py``).
-    warp : {"affine", "quadratic", "none"}, default: "affine"
+    warp : {"auto", "affine", "quadratic", "none"}, default: "auto"
         The paper's initializing globally affine step (section 1: "an
         initializing globally affine step is added. Therefore, using only
         translation of the vertices is sufficient"): after the orientation
@@ -182,12 +190,14 @@ class RegistrationConfig:
         proportion differences are taken up before the translation-only
         elastic steps, which move vertices along their normals only and
         cannot stretch a surface along itself. ``"quadratic"`` adds the
-        second-order terms (taper, bend). Measured with
-        ``benchmarks/registration.py`` (4 targets per class and pose),
-        against ``"none"``: dense correspondence error apple 2.8 -> 2.4 mm
-        (upright) and 3.6 -> 3.2 mm (random pose), pepper (random) 4.6 ->
-        2.6 mm, banana 5.9 -> 3.0 mm; but the apples' stalk-tip error 2.1 ->
-        3.9 mm and zucchini 41 -> 49 mm.
+        second-order terms (taper, bend); ``"auto"`` takes it for elongated
+        references (``ELONGATED``) and the affine map for round ones.
+        Measured with ``benchmarks/registration.py`` (4 targets per class
+        and pose), affine against ``"none"``: dense correspondence error
+        apple 2.8 -> 2.4 mm (upright) and 3.6 -> 3.2 mm (random pose),
+        pepper (random) 4.6 -> 2.6 mm, banana 5.9 -> 3.0 mm; but the apples'
+        stalk-tip error 2.1 -> 3.9 mm and zucchini 41 -> 49 mm (quadratic:
+        24 mm).
     warp_ridge : float, default: 0.05
         Damping of the warp's Gauss-Newton steps, relative to the mean
         diagonal of the normal equations.
@@ -213,7 +223,7 @@ class RegistrationConfig:
     twists: int = 0
     rigid_steps: bool = True
     affine: str = "none"
-    warp: str = "affine"
+    warp: str = "auto"
     warp_ridge: float = 0.05
     final_beta: float | None = 0.1
     multiresolution: bool = True
@@ -233,8 +243,8 @@ class RegistrationConfig:
             raise ValueError(f"orientation must be 'search', 'pca' or 'none', got {self.orientation!r}")
         if self.affine not in ("stiff", "all", "none"):
             raise ValueError(f"affine must be 'stiff', 'all' or 'none', got {self.affine!r}")
-        if self.warp not in ("none", "affine", "quadratic"):
-            raise ValueError(f"warp must be 'none', 'affine' or 'quadratic', got {self.warp!r}")
+        if self.warp not in ("auto", "none", "affine", "quadratic"):
+            raise ValueError(f"warp must be 'auto', 'affine', 'quadratic' or 'none', got {self.warp!r}")
         if self.orientation_rank < 0:
             raise ValueError(f"orientation_rank must be >= 0, got {self.orientation_rank}")
         if self.twists < 0:
@@ -798,6 +808,20 @@ class _Warp:
         return out
 
 
+def _warp_degree(warp: str, vertices: np.ndarray) -> int:
+    """Degree of the initializing warp: 0 (none), 1 (affine) or 2 (quadratic).
+
+    ``"auto"``: quadratic for an elongated reference (its longest principal
+    axis at least ``ELONGATED`` times the next, as the standard deviations:
+    zucchini 3.7, banana 2.6, pear 1.7), affine for a round one (apple 1.0,
+    pepper 1.3).
+    """
+    if warp == "auto":
+        var = np.sort(principal_axes(vertices).variances)[::-1]
+        return 2 if np.sqrt(var[0] / var[1]) >= ELONGATED else 1
+    return {"none": 0, "affine": 1, "quadratic": 2}[warp]
+
+
 def _monomials(u: np.ndarray, degree: int) -> np.ndarray:
     """``1, u_x, u_y, u_z`` and, for degree 2, ``u_x^2, u_y^2, u_z^2, u_x u_y, u_x u_z, u_y u_z``."""
     cols = [np.ones(len(u)), u[:, 0], u[:, 1], u[:, 2]]
@@ -1056,7 +1080,8 @@ def register(
     base_c = apply_transform(t0, coarse.vertices)
     base_f = apply_transform(t0, fine.vertices)
     warp_affine = np.eye(4)
-    warp = _fit_warp(coarse, base_c, tgt, cfg, 1 if cfg.warp == "affine" else 2) if cfg.warp != "none" else None
+    degree = _warp_degree(cfg.warp, template.mesh.vertices)
+    warp = _fit_warp(coarse, base_c, tgt, cfg, degree) if degree else None
     if warp is not None:
         base_c, base_f = warp(base_c), warp(base_f)
         warp_affine = warp.affine(apply_transform(t0, fine.vertices))
