@@ -16,8 +16,8 @@ instances are targets. Per class it prints:
   their canonical points truly lie on the target (``synth.true_correspondence``);
 * orientation: angle between the registered and the true stalk axis, and the
   residual rotation (including the twist about the stalk axis);
-* folded triangles: faces whose normal turned by more than 90 degrees from the
-  rigidly aligned reference.
+* folded triangles: faces that lie on the target (centroid within 0.25 mm) but
+  face into it (their normal against the target's normal there).
 
 The same figures for trimesh's ``nricp_amberg`` (started from the same rigid
 alignment) on the first ``--baseline`` pairs per class.
@@ -102,7 +102,15 @@ def _measure(vertices, faces, ref_rigid, template, canon, lm_loc, tgt):
     for name, (fi, bc) in lm_loc.items():
         p = barycentric_interpolate(vertices, faces, fi, bc)
         lms[name] = float(np.linalg.norm(p[0] - tgt[name]))
-    folded = int((np.einsum("ij,ij->i", face_normals(vertices, faces), face_normals(ref_rigid, faces)) <= 0).sum())
+    # a triangle is folded (inverted) when it lies on the target (centroid within
+    # 0.25 mm) but faces into it; the old measure (normal turned by more than
+    # 90 degrees from the rigidly aligned reference) missed folds where the
+    # target's surface turns away from the reference's
+    centroids = vertices[faces].mean(axis=1)
+    on_target = closest_points(tgt["mesh"], centroids)
+    target_n = face_normals(tgt["mesh"].vertices, tgt["mesh"].faces)[on_target.face_index]
+    inward = np.einsum("ij,ij->i", face_normals(vertices, faces), target_n) <= 0
+    folded = int((inward & (on_target.distances < 0.25)).sum())
     return dict(
         geom=float(geom.mean()),
         cov=float(cov.mean()),
