@@ -7,7 +7,6 @@ cause (bad files, bad options) become one line on stderr and exit status 1.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 from pathlib import Path
