@@ -319,3 +319,16 @@ def test_cli_exports_the_mean_and_a_mode(tmp_path, model, capsys):
     assert "only one of" in capsys.readouterr().err
     assert main(["cad", str(path), "--out", str(tmp_path / "x.obj")]) == 1
     assert ".step" in capsys.readouterr().err
+
+
+def test_demo_writes_the_mean_and_a_mode_as_cad_files(tmp_path, model):
+    from hortishape.demo import write_cad_examples
+
+    files = write_cad_examples(model, tmp_path, grid=8)
+    names = sorted(p.name for p in files)
+    assert names == ["mean.json", "mean.step", "mode1_plus3sd.json", "mode1_plus3sd.step"]
+    mean = cad.read_cad(tmp_path / "mean.step")
+    np.testing.assert_allclose(mean.control_points, cad.read_cad(tmp_path / "mean.json").control_points, atol=1e-9)
+    # the mode's surface differs from the mean's, by the model's first mode at +3 SD
+    mode = cad.read_cad(tmp_path / "mode1_plus3sd.json")
+    assert np.abs(mode.control_points - mean.control_points).max() > 0.5

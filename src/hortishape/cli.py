@@ -534,6 +534,7 @@ def _run_demo(args) -> int:
           f"(picture: {r.samples_picture})")
     print(f"  shape modes (Fig. 7)      {r.modes_picture}")
     print(f"  quality report            {r.report} (metrics.json, metrics.csv beside it)")
+    print(f"  CAD surfaces (32 x 32)    {', '.join(str(p) for p in r.cad)}")
     return 0
 
 

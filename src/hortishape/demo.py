@@ -8,7 +8,8 @@ pictures the first modes (the paper's Figs. 7 and 8) and evaluates the
 model (:func:`hortishape.evaluate.evaluate_model`: compactness,
 generalization, specificity, the geometric error map, landmark errors
 against the generator's ground truth and the population's dimensions),
-with the HTML report in ``model/evaluation/report.html``.
+with the HTML report in ``model/evaluation/report.html``, and writes the
+mean and its first mode as B-spline surfaces (STEP, JSON) under ``cad/``.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from .pipeline import BuildResult, build_model
 if TYPE_CHECKING:  # pragma: no cover
     from .evaluate import Evaluation
 
-__all__ = ["DemoResult", "run_demo", "write_samples"]
+__all__ = ["DemoResult", "run_demo", "write_cad_examples", "write_samples"]
 
 
 @dataclass(frozen=True)
@@ -39,6 +40,7 @@ class DemoResult:
     modes_picture: Path
     evaluation: "Evaluation"
     report: Path
+    cad: tuple
     seconds: float
 
 
@@ -69,6 +71,30 @@ def write_samples(model, out_dir, n: int, *, modes: int = 5, truncate: float = 3
                           titles=[p.stem for p in paths], n_cols=min(n, 5), views=("front", "top"),
                           cell_size=(220, 240))
     return paths, pic
+
+
+def write_cad_examples(model, out_dir, *, grid: int = 32) -> list[Path]:
+    """The model's mean and its first mode at +3 SD as B-spline surfaces (paper section 2.2.4).
+
+    Writes ``mean.step``, ``mean.json`` and ``mode1_plus3sd.step`` into
+    ``out_dir``; without OpenCascade (the ``cad`` extra) only the JSON files.
+    The operator is fitted once (:class:`hortishape.cad.BSplineModel`); the
+    mode's control points come from it without refitting.
+    """
+    from .cad import BSplineModel, write_cad
+    from .errors import HortishapeError
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    bm = BSplineModel(grid=grid).fit(model)
+    mode = bm.mode_shapes(0, sd=3.0)[1]
+    files = [write_cad(out / "mean.json", bm.mean_), write_cad(out / "mode1_plus3sd.json", mode)]
+    try:
+        files += [write_cad(out / "mean.step", bm.mean_), write_cad(out / "mode1_plus3sd.step", mode)]
+    except HortishapeError as exc:  # OpenCascade not installed: the JSON files still say it all
+        if "OCP" not in str(exc):
+            raise
+    return files
 
 
 def run_demo(
@@ -119,6 +145,8 @@ def run_demo(
     modes_pic = render_modes(model, out / "modes" / "modes.png", n_modes=n_modes)
     # the ground-truth landmarks beside the scans are found by default
     evaluation = evaluate_model(build.out_dir, random_state=seed, progress=progress)
+    cad_files = write_cad_examples(model, out / "cad")
     return DemoResult(out_dir=out, scans=scans, build=build, samples=tuple(samples), samples_picture=samples_pic,
                       modes=tuple(modes), modes_picture=modes_pic, evaluation=evaluation,
-                      report=evaluation.files["report"], seconds=time.perf_counter() - start)
+                      report=evaluation.files["report"], cad=tuple(cad_files),
+                      seconds=time.perf_counter() - start)
