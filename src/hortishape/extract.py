@@ -54,7 +54,6 @@ import os
 import tempfile
 import time
 import traceback
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Callable, Iterable, Sequence
@@ -62,6 +61,7 @@ from typing import Callable, Iterable, Sequence
 import numpy as np
 
 from . import __version__
+from ._batch import raise_failed, run_jobs
 from .errors import HortishapeError, MeshError, VolumeError
 from .io import Volume, atomic_path, read_volume, volume_formats, write_mesh
 from .mesh import Mesh
@@ -1324,26 +1324,4 @@ def extract_files(
     options = {"level": level, "smoothing": smoothing, "target_vertices": target_vertices,
                "remove_support": remove_support, "support_radius": support_radius, "picture": picture}
     jobs = [(str(p), str(out), options) for p in paths]
-    results: list[ExtractResult | None] = [None] * len(jobs)
-    wrap = progress or (lambda it: it)
-    n_jobs = max(1, min(n_jobs or os.cpu_count() or 1, len(jobs) or 1))
-
-    def handle(i: int, res: ExtractResult) -> None:
-        results[i] = res
-        if strict and not res.ok:
-            raise HortishapeError(res.error or f"{res.source}: failed")
-
-    if n_jobs == 1:
-        for i, job in enumerate(wrap(jobs)):
-            handle(i, _extract_job(job))
-    else:
-        with ProcessPoolExecutor(max_workers=n_jobs) as pool:
-            futures = {pool.submit(_extract_job, job): i for i, job in enumerate(jobs)}
-            try:
-                for fut in wrap(as_completed(futures)):
-                    handle(futures[fut], fut.result())
-            except BaseException:
-                for f in futures:
-                    f.cancel()
-                raise
-    return results  # type: ignore[return-value]
+    return run_jobs(_extract_job, jobs, n_jobs=n_jobs, progress=progress, stop=raise_failed if strict else None)

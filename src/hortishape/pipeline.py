@@ -19,13 +19,13 @@ import os
 import time
 import traceback
 import warnings
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
+from ._batch import raise_failed, run_jobs
 from .errors import ConvergenceWarning, HortishapeError
 from .io import atomic_path, is_mesh_file, mesh_formats, read_mesh, write_mesh
 from .mesh import Mesh
@@ -331,33 +331,12 @@ def register_files(
         raise ValueError(f"{len(starts)} initial transforms for {len(targets)} scans")
     jobs = [(str(t), str(out_dir), None if a is None else np.asarray(a, dtype=np.float64).reshape(4, 4))
             for t, a in zip(targets, starts)]
-    results: list[InstanceResult | None] = [None] * len(jobs)
-    wrap = progress or (lambda it: it)
-    n_jobs = max(1, min(n_jobs or os.cpu_count() or 1, len(jobs)))
-
-    def handle(i: int, res: InstanceResult) -> None:
-        results[i] = res
-        if strict and not res.ok:
-            raise HortishapeError(res.error or f"{res.source}: failed")
-
-    if n_jobs == 1:
-        _init_worker(template, cfg, fingerprint)
-        try:
-            for i, job in enumerate(wrap(jobs)):
-                handle(i, _register_file(job))
-        finally:
-            _WORKER.clear()
-    else:
-        with ProcessPoolExecutor(max_workers=n_jobs, initializer=_init_worker,
-                                 initargs=(template, cfg, fingerprint)) as pool:
-            futures = {pool.submit(_register_file, job): i for i, job in enumerate(jobs)}
-            try:
-                for fut in wrap(as_completed(futures)):
-                    handle(futures[fut], fut.result())
-            except BaseException:
-                for f in futures:
-                    f.cancel()
-                raise
+    try:
+        results = run_jobs(_register_file, jobs, n_jobs=n_jobs, progress=progress,
+                           stop=raise_failed if strict else None,
+                           initializer=_init_worker, initargs=(template, cfg, fingerprint))
+    finally:
+        _WORKER.clear()  # when the jobs ran in this process
     return results  # type: ignore[return-value]
 
 

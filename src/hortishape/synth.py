@@ -41,13 +41,13 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterable
 
 import numpy as np
 
+from ._batch import run_jobs
 from ._rng import RandomState, as_generator, spawn_seeds
 from .errors import HortishapeError
 from .mesh import Mesh
@@ -1062,17 +1062,5 @@ def write_population(
     seeds = spawn_seeds(random_state, n)
     jobs = [(product, s, i, str(out_dir), pose, noise, n_vertices, volumes, random_state)
             for i, s in enumerate(seeds)]
-    n_jobs = n_jobs or os.cpu_count() or 1
-    results: list = [None] * n
-    wrap = progress or (lambda it: it)
-    if n_jobs == 1 or n == 1:
-        for i, job in enumerate(wrap(jobs)):
-            results[i] = _make_and_write(job)
-    else:
-        from concurrent.futures import ProcessPoolExecutor, as_completed
-
-        with ProcessPoolExecutor(max_workers=min(n_jobs, n)) as pool:
-            futures = {pool.submit(_make_and_write, job): i for i, job in enumerate(jobs)}
-            for fut in wrap(as_completed(futures)):
-                results[futures[fut]] = fut.result()
+    results = run_jobs(_make_and_write, jobs, n_jobs=n_jobs, progress=progress)
     return [{"name": r[0], "n_vertices": r[1], "dimensions_mm": r[2]} for r in results]
