@@ -88,6 +88,7 @@ import scipy.sparse as sp
 from ._rng import RandomState
 from .errors import HortishapeError, MeshError, NotFittedError
 from .mesh import Mesh, check_mesh, unique_edges
+from .surface import face_areas
 
 if TYPE_CHECKING:  # pragma: no cover
     from .model import ShapeModel
@@ -145,13 +146,9 @@ class Poles:
     axis: np.ndarray
 
 
-def _face_areas(v: np.ndarray, f: np.ndarray) -> np.ndarray:
-    return 0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
-
-
 def _vertex_areas(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     out = np.zeros(len(v))
-    np.add.at(out, f.ravel(), np.repeat(_face_areas(v, f) / 3.0, 3))
+    np.add.at(out, f.ravel(), np.repeat(face_areas(v, f) / 3.0, 3))
     return out
 
 
@@ -257,7 +254,7 @@ def find_poles(
     """
     v, f = _check_surface(vertices, faces, "surface")
     graph = _edge_graph(v, f)
-    radius = math.sqrt(float(_face_areas(v, f).sum()) / (4.0 * math.pi))
+    radius = math.sqrt(float(face_areas(v, f).sum()) / (4.0 * math.pi))
     region = _POLE_REGION * radius
 
     if stalk is not None and bottom is not None:
