@@ -16,8 +16,8 @@ instances are targets. Per class it prints:
   their canonical points truly lie on the target (``synth.true_correspondence``);
 * orientation: angle between the registered and the true stalk axis, and the
   residual rotation (including the twist about the stalk axis);
-* folded triangles: faces that lie on the target (centroid within 0.25 mm) but
-  face into it (their normal against the target's normal there).
+* folded triangles: faces turned by more than 90 degrees from the globally
+  placed reference, or from a neighbour (the surface turns back on itself).
 
 The same figures for trimesh's ``nricp_amberg`` (started from the same rigid
 alignment) on the first ``--baseline`` pairs per class.
@@ -90,7 +90,7 @@ def _angle(r):
     return float(np.degrees(np.arccos(np.clip((np.trace(r) - 1) / 2, -1, 1))))
 
 
-def _measure(vertices, faces, ref_rigid, template, canon, lm_loc, tgt):
+def _measure(vertices, faces, ref_global, template, canon, lm_loc, tgt):
     from hortishape.mesh import Mesh
     from hortishape.surface import barycentric_interpolate, closest_points, face_normals
 
@@ -102,15 +102,24 @@ def _measure(vertices, faces, ref_rigid, template, canon, lm_loc, tgt):
     for name, (fi, bc) in lm_loc.items():
         p = barycentric_interpolate(vertices, faces, fi, bc)
         lms[name] = float(np.linalg.norm(p[0] - tgt[name]))
-    # a triangle is folded (inverted) when it lies on the target (centroid within
-    # 0.25 mm) but faces into it; the old measure (normal turned by more than
-    # 90 degrees from the rigidly aligned reference) missed folds where the
-    # target's surface turns away from the reference's
-    centroids = vertices[faces].mean(axis=1)
-    on_target = closest_points(tgt["mesh"], centroids)
-    target_n = face_normals(tgt["mesh"].vertices, tgt["mesh"].faces)[on_target.face_index]
-    inward = np.einsum("ij,ij->i", face_normals(vertices, faces), target_n) <= 0
-    folded = int((inward & (on_target.distances < 0.25)).sum())
+    # A triangle is folded (inverted) when its normal is turned by more than
+    # 90 degrees from the same triangle of the globally placed reference, or
+    # from a neighbour across an edge (the surface turns back on itself; the
+    # synthetic scans have no such edge). An earlier measure, "within 0.25 mm
+    # of the target but facing into it", counted side faces of a stalk that
+    # overshoots the target's stalk tip: they lie beside its end cap, at
+    # right angles to it, unturned and unfolded.
+    normals = face_normals(vertices, faces)
+    turned = np.einsum("ij,ij->i", normals, face_normals(ref_global, faces)) <= 0
+    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    owner = np.tile(np.arange(len(faces)), 3)
+    order = np.lexsort((edges[:, 1], edges[:, 0]))
+    edges, owner = edges[order], owner[order]
+    pair = (edges[1:] == edges[:-1]).all(axis=1)  # closed manifold: each edge twice, adjacent after sorting
+    a, b = owner[:-1][pair], owner[1:][pair]
+    back = np.einsum("ij,ij->i", normals[a], normals[b]) <= 0
+    turned[a[back]] = turned[b[back]] = True
+    folded = int(turned.sum())
     return dict(
         geom=float(geom.mean()),
         cov=float(cov.mean()),
@@ -158,8 +167,8 @@ def run_class(product, pose, files, n_baseline, config=None):
         sec = time.perf_counter() - t0
         r_true = tgt["pose"][:3, :3] @ ref["pose"][:3, :3].T
         ax = np.degrees(np.arccos(np.clip((reg.transform[:3, :3] @ ref["pose"][:3, 2]) @ tgt["pose"][:3, 2], -1, 1)))
-        ref_rigid = apply_transform(reg.transform, template.mesh.vertices)
-        m = _measure(reg.vertices, reg.faces, ref_rigid, template, canon, lm_loc, tgt)
+        ref_global = apply_transform(reg.affine, template.mesh.vertices)
+        m = _measure(reg.vertices, reg.faces, ref_global, template, canon, lm_loc, tgt)
         m.update(sec=sec, axis=float(ax), rot=_angle(reg.transform[:3, :3] @ r_true.T), its=len(reg.log))
         rows.append(m)
         starts.append((tgt, reg.transform))
