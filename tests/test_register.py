@@ -252,3 +252,23 @@ def test_zucchini_correspondence_does_not_slide_along_a_shorter_target():
     dense_error = np.linalg.norm(reg.vertices - truth, axis=1).mean()
     assert dense_error < 6.0, dense_error
     assert closest_points(tgt.mesh, reg.vertices).distances.mean() < 0.1
+
+
+def test_folded_triangles_are_repaired(template):
+    from hortishape.register import _folded_faces, _repair_folds
+
+    fine = template.level("fine")
+    placed = fine.vertices
+    # slide one vertex along the surface past its neighbours: half its fan folds over
+    radial = placed - placed.mean(axis=0)
+    j = int(np.argmax(np.linalg.norm(radial, axis=1)))
+    tangent = np.cross(radial[j], [1.0, 0.0, 0.0])
+    positions = placed.copy()
+    positions[j] += 3.0 * fine.edge_length * tangent / np.linalg.norm(tangent)
+    assert _folded_faces(fine.faces, placed, positions).sum() >= 3
+    fixed = _repair_folds(fine, placed, positions)
+    assert not _folded_faces(fine.faces, placed, fixed).any()
+    moved = np.linalg.norm(fixed - positions, axis=1) > 1e-12
+    assert moved[j] and moved.sum() < 100  # a patch around the fold, nothing else
+    # the fill-in is harmonic: here the displacement around is zero, so is the patch's
+    np.testing.assert_allclose(fixed, placed, atol=1e-9)
