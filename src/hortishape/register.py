@@ -198,8 +198,9 @@ class RegistrationConfig:
         and pose), affine against ``"none"``: dense correspondence error
         apple 2.8 -> 2.4 mm (upright) and 3.6 -> 3.2 mm (random pose),
         pepper (random) 4.6 -> 2.6 mm, banana 5.9 -> 3.0 mm; but the apples'
-        stalk-tip error 2.1 -> 3.9 mm and zucchini 41 -> 49 mm (quadratic:
-        24 mm).
+        stalk-tip error 2.1 -> 3.9 mm and zucchini 41 -> 49 mm. Quadratic,
+        for zucchini: 24 mm, then 13.6 mm once the map started from matched
+        centroids and had ``warp_prior``.
     warp_ridge : float, default: 0.05
         Damping of the warp's Gauss-Newton steps, relative to the mean
         diagonal of the normal equations.
