@@ -95,7 +95,8 @@ def _angle(r):
 def _measure(vertices, faces, ref_global, template, canon, lm_loc, tgt):
     from hortishape.align import apply_transform, rigid_fit
     from hortishape.mesh import Mesh
-    from hortishape.surface import barycentric_interpolate, closest_points, face_normals
+    from hortishape.register import _folded_faces  # the definition the fold repair uses
+    from hortishape.surface import barycentric_interpolate, closest_points
 
     truth_cp = closest_points(Mesh(tgt["canonical"], tgt["mesh"].faces), canon)
     truth = barycentric_interpolate(tgt["mesh"].vertices, tgt["mesh"].faces, truth_cp.face_index, truth_cp.barycentric)
@@ -112,17 +113,7 @@ def _measure(vertices, faces, ref_global, template, canon, lm_loc, tgt):
     # of the target but facing into it", counted side faces of a stalk that
     # overshoots the target's stalk tip: they lie beside its end cap, at
     # right angles to it, unturned and unfolded.
-    normals = face_normals(vertices, faces)
-    turned = np.einsum("ij,ij->i", normals, face_normals(ref_global, faces)) <= 0
-    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
-    owner = np.tile(np.arange(len(faces)), 3)
-    order = np.lexsort((edges[:, 1], edges[:, 0]))
-    edges, owner = edges[order], owner[order]
-    pair = (edges[1:] == edges[:-1]).all(axis=1)  # closed manifold: each edge twice, adjacent after sorting
-    a, b = owner[:-1][pair], owner[1:][pair]
-    back = np.einsum("ij,ij->i", normals[a], normals[b]) <= 0
-    turned[a[back]] = turned[b[back]] = True
-    folded = int(turned.sum())
+    folded = int(_folded_faces(faces, ref_global, vertices).sum())
     # the same after the best rigid motion of the registered surface onto the
     # truth: what remains is the correspondence's sliding over the surface,
     # not its pose. On a near body of revolution (a straight zucchini, a
