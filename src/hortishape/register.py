@@ -63,6 +63,9 @@ Design choices where the paper is silent or ambiguous
   needed for the paper's sub-0.1 mm geometric errors; any triangle that
   would fold (its normal turning by more than 90 degrees in the step) keeps
   its vertices' previous positions.
+* *No folds.* Triangles still folded at the end (turned by more than 90
+  degrees from the placed reference, or from a neighbour) get the harmonic
+  fill-in of the displacement around them (``_repair_folds``).
 """
 
 from __future__ import annotations
@@ -722,6 +725,8 @@ def _repair_folds(
             region |= (adj @ region.astype(np.float64)) > 0
         inner = np.flatnonzero(region)
         outer = np.flatnonzero(~region)
+        if len(outer) == 0:  # folds everywhere: nothing to interpolate from
+            break
         disp = out - placed
         a = lap[inner][:, inner].tocsc()
         rhs = -(lap[inner][:, outer] @ disp[outer])
