@@ -207,6 +207,9 @@ def _add_registration_options(p) -> None:
                    help="correspondence filter: largest angle between the normals")
     g.add_argument("--distance-factor", type=float, default=20.0, metavar="F",
                    help="correspondence filter: reject hits farther than F x the previous mean distance")
+    g.add_argument("--distance-floor", type=float, default=5.0, metavar="EDGES",
+                   help="but never hits closer than this many reference edge lengths (0: the paper's "
+                        "filter, which can leave an overshooting stalk tip in the air)")
     g.add_argument("--tolerance", type=float, default=1e-3,
                    help="convergence when |d_t - d_(t-1)| / d_t falls below this")
     g.add_argument("--orientation", choices=["search", "pca", "none"], default="search",
@@ -224,7 +227,8 @@ def _registration_config(args):
     try:
         return RegistrationConfig(
             n_iterations=args.iterations, beta_start=args.stiffness[0], beta_end=args.stiffness[1],
-            max_angle=args.max_angle, distance_factor=args.distance_factor, tolerance=args.tolerance,
+            max_angle=args.max_angle, distance_factor=args.distance_factor,
+            distance_floor=args.distance_floor, tolerance=args.tolerance,
             max_iterations=max(50, args.iterations + 20), orientation=args.orientation, warp=args.warp,
         )
     except ValueError as exc:
