@@ -1332,13 +1332,7 @@ class BSplineModel:
         BSplineSurface
         """
         self._check_fitted()
-        c = np.asarray(coefficients, dtype=np.float64)
-        if c.ndim != 1 or c.size > self.n_components_:
-            raise ValueError(
-                f"coefficients must have shape (k,) with k <= {self.n_components_}, got {c.shape}"
-            )
-        if not np.isfinite(c).all():
-            raise ValueError("coefficients contain NaN or infinite values")
+        c = self._model._one_instance(coefficients)
         b = c * np.sqrt(self.explained_variance_[: c.size])
         return BSplineSurface(self.mean_control_points_ + np.tensordot(b, self.components_[: c.size], axes=1))
 
@@ -1352,10 +1346,7 @@ class BSplineModel:
     def mode_shapes(self, mode: int, *, sd: float = 3.0) -> tuple[BSplineSurface, BSplineSurface]:
         """The mean moved ``-sd`` and ``+sd`` standard deviations along one mode (index from 0)."""
         self._check_fitted()
-        if isinstance(mode, bool) or not isinstance(mode, (int, np.integer)) or not 0 <= mode < self.n_components_:
-            raise ValueError(f"mode must be an integer in [0, {self.n_components_ - 1}], got {mode!r}")
-        if not np.isfinite(sd):
-            raise ValueError(f"sd must be a finite number, got {sd!r}")
+        self._model._check_mode(mode, sd)
         c = np.zeros(int(mode) + 1)
         c[mode] = sd
         return self.instance(-c), self.instance(c)

@@ -322,6 +322,20 @@ class ShapeModel:
             raise ValueError(f"{name} contain NaN or infinite values")
         return c
 
+    def _one_instance(self, coefficients) -> np.ndarray:
+        """``(k',)`` float64 coefficients of one instance, checked as :meth:`_coefficients` does."""
+        c = np.asarray(coefficients, dtype=np.float64)
+        if c.ndim != 1:
+            raise ValueError(f"coefficients of one instance must have shape (k,), got {c.shape}")
+        return self._coefficients(c)[0]
+
+    def _check_mode(self, mode, sd: float) -> None:
+        """Raise ``ValueError`` unless ``mode`` indexes a mode and ``sd`` is finite."""
+        if isinstance(mode, bool) or not isinstance(mode, (int, np.integer)) or not 0 <= mode < self.n_components_:
+            raise ValueError(f"mode must be an integer in [0, {self.n_components_ - 1}], got {mode!r}")
+        if not np.isfinite(sd):
+            raise ValueError(f"sd must be a finite number, got {sd!r}")
+
     # ------------------------------------------------------- transform etc.
 
     def transform(self, shapes: Shapes) -> np.ndarray:
@@ -411,10 +425,7 @@ class ShapeModel:
         (n, 3) float64 ndarray
         """
         self._check_fitted()
-        c = np.asarray(coefficients, dtype=np.float64)
-        if c.ndim != 1:
-            raise ValueError(f"coefficients of one instance must have shape (k,), got {c.shape}")
-        return self.inverse_transform(c)[0]
+        return self.inverse_transform(self._one_instance(coefficients))[0]
 
     def mode_shapes(self, mode: int, *, sd: float = 3.0) -> tuple[np.ndarray, np.ndarray]:
         """The mean moved ``-sd`` and ``+sd`` standard deviations along one mode (paper Fig. 7).
@@ -431,10 +442,7 @@ class ShapeModel:
         minus, plus : (n, 3) float64 ndarray
         """
         self._check_fitted()
-        if isinstance(mode, bool) or not isinstance(mode, (int, np.integer)) or not 0 <= mode < self.n_components_:
-            raise ValueError(f"mode must be an integer in [0, {self.n_components_ - 1}], got {mode!r}")
-        if not np.isfinite(sd):
-            raise ValueError(f"sd must be a finite number, got {sd!r}")
+        self._check_mode(mode, sd)
         step = (sd * math.sqrt(self.explained_variance_[mode]) * self.components_[mode]).reshape(-1, 3)
         return self.mean_ - step, self.mean_ + step
 
