@@ -603,43 +603,6 @@ def _check_options(smoothing, target_vertices, support_radius) -> None:
         raise ValueError(f"support_radius must be a positive number of mm, got {support_radius!r}")
 
 
-def _check_watertight(mesh: Mesh, *, name: str) -> None:
-    """Raise unless ``mesh`` is one closed, consistently oriented manifold surface.
-
-    The test of :func:`hortishape.surface.check_closed_surface` (each directed
-    edge once, and its reverse once; one connected component), done with
-    about a third of the memory, which matters for the million-vertex
-    surfaces of large volumes.
-    """
-    from scipy.sparse import csr_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    f, n = mesh.faces, mesh.n_vertices
-
-    def directed(a: int, b: int) -> np.ndarray:
-        """Sorted keys ``f[:, a + k] * n + f[:, b + k]`` of the edges (k = 0, 1, 2 cyclic)."""
-        key = f * n
-        for k in range(3):
-            key[:, (a + k) % 3] += f[:, (b + k) % 3]
-        key = key.ravel()
-        key.sort()
-        return key
-
-    key = directed(0, 1)
-    if (key[1:] == key[:-1]).any():
-        raise MeshError(f"{name}: the extracted surface is non-manifold (a directed edge is used twice)")
-    if not np.array_equal(key, directed(1, 0)):
-        raise MeshError(f"{name}: the extracted surface is not closed")
-    del key
-    index = np.int32 if n < 2**31 - 1 else np.int64
-    graph = csr_matrix((np.ones(3 * len(f), dtype=np.int8),
-                        (f.astype(index).ravel(), f[:, [1, 2, 0]].astype(index).ravel())), shape=(n, n))
-    # symmetric (closed, consistently oriented): strong components are the components
-    n_comp = connected_components(graph, directed=True, connection="strong", return_labels=False)
-    if n_comp != 1:
-        raise MeshError(f"{name}: the extracted surface has {n_comp} connected components, not one")
-
-
 def _fill_values(levels: IntensityLevels) -> tuple[float, float]:
     """Intensities given to filled cavities (inside) and to dropped objects (outside)."""
     contrast = abs(levels.foreground - levels.background) or 1.0
@@ -875,7 +838,7 @@ def extract_surface(
     >>> round(ext.volume / (4 / 3 * np.pi * 12**3), 2)
     1.0
     """
-    from .surface import signed_volume
+    from .surface import check_closed_surface, signed_volume
 
     vol = _as_volume(volume)
     _check_options(smoothing, target_vertices, support_radius)
@@ -898,7 +861,8 @@ def extract_surface(
     del world, faces
     if target_vertices is not None:
         mesh = decimate(mesh, int(target_vertices))
-    _check_watertight(mesh, name=name)
+    # marching cubes' degenerate slivers (allow_degenerate above) are harmless here
+    check_closed_surface(mesh, name=name, allow_degenerate=True)
     return Extraction(mesh, levels, bounds, n_object, n_filled, n_support, n_mc)
 
 
