@@ -419,6 +419,12 @@ class _Level:
             self._cache["ldl"] = _Factor(self.laplacian)
         return self._cache["ldl"]
 
+    def face_pairs(self) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`_face_pairs` of the level's faces (built on first use)."""
+        if "pairs" not in self._cache:
+            self._cache["pairs"] = _face_pairs(self.faces)
+        return self._cache["pairs"]
+
     @staticmethod
     def build(mesh: Mesh) -> "_Level":
         e = mesh.edges()
@@ -700,16 +706,24 @@ def _unfold_step(faces: np.ndarray, old: np.ndarray, new: np.ndarray, *, max_rou
     return out
 
 
-def _folded_faces(faces: np.ndarray, placed: np.ndarray, positions: np.ndarray) -> np.ndarray:
-    """Faces turned by more than 90 degrees from ``placed``, or from a neighbour across an edge."""
-    n = face_normals(positions, faces)
-    bad = np.einsum("ij,ij->i", n, face_normals(placed, faces)) <= 0
+def _face_pairs(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The two faces on each edge of a closed manifold surface, ``(a, b)``."""
     edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
     owner = np.tile(np.arange(len(faces)), 3)
     order = np.lexsort((edges[:, 1], edges[:, 0]))
     edges, owner = edges[order], owner[order]
-    pair = (edges[1:] == edges[:-1]).all(axis=1)  # each edge of a closed manifold twice
-    a, b = owner[:-1][pair], owner[1:][pair]
+    pair = (edges[1:] == edges[:-1]).all(axis=1)  # each edge twice, adjacent after sorting
+    return owner[:-1][pair], owner[1:][pair]
+
+
+def _folded_faces(faces: np.ndarray, placed: np.ndarray, positions: np.ndarray, pairs=None) -> np.ndarray:
+    """Faces turned by more than 90 degrees from ``placed``, or from a neighbour across an edge.
+
+    ``pairs``: :func:`_face_pairs` of ``faces``, if already known.
+    """
+    n = face_normals(positions, faces)
+    bad = np.einsum("ij,ij->i", n, face_normals(placed, faces)) <= 0
+    a, b = _face_pairs(faces) if pairs is None else pairs
     back = np.einsum("ij,ij->i", n[a], n[b]) <= 0
     bad[a[back]] = bad[b[back]] = True
     return bad
@@ -733,11 +747,12 @@ def _repair_folds(
     faces = level.faces
     out = positions
     lap = level.laplacian
-    adj = (lap != 0).astype(np.float64)
+    pairs = level.face_pairs()
     for k in range(rounds):
-        bad = _folded_faces(faces, placed, out)
+        bad = _folded_faces(faces, placed, out, pairs)
         if not bad.any():
             break
+        adj = (lap != 0).astype(np.float64)
         region = np.zeros(len(out), dtype=bool)
         region[faces[bad].ravel()] = True
         for _ in range(rings + k):
