@@ -19,7 +19,8 @@ instances are targets. Per class it prints:
 * orientation: angle between the registered and the true stalk axis, and the
   residual rotation (including the twist about the stalk axis);
 * folded triangles: faces turned by more than 90 degrees from the globally
-  placed reference, or from a neighbour (the surface turns back on itself).
+  placed reference (``Registration.placed``: rigid placement and warp), or
+  from a neighbour (the surface turns back on itself).
 
 The same figures for trimesh's ``nricp_amberg`` (started from the same rigid
 alignment) on the first ``--baseline`` pairs per class.
@@ -146,7 +147,6 @@ def _peak_rss_mb() -> float:
 def run_class(product, pose, files, n_baseline, config=None):
     """Worker: prepare the reference, register every target, measure (separate process)."""
     warnings.simplefilter("ignore")
-    from hortishape.align import apply_transform
     from hortishape.register import RegistrationConfig, prepare_reference, register
     from hortishape.surface import barycentric_interpolate, closest_points
 
@@ -169,7 +169,7 @@ def run_class(product, pose, files, n_baseline, config=None):
         sec = time.perf_counter() - t0
         r_true = tgt["pose"][:3, :3] @ ref["pose"][:3, :3].T
         ax = np.degrees(np.arccos(np.clip((reg.transform[:3, :3] @ ref["pose"][:3, 2]) @ tgt["pose"][:3, 2], -1, 1)))
-        ref_global = apply_transform(reg.affine, template.mesh.vertices)
+        ref_global = reg.placed  # after the warp: the surface the elastic displacement starts from
         m = _measure(reg.vertices, reg.faces, ref_global, template, canon, lm_loc, tgt)
         m.update(sec=sec, axis=float(ax), rot=_angle(reg.transform[:3, :3] @ r_true.T), its=len(reg.log))
         rows.append(m)
