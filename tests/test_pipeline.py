@@ -161,7 +161,12 @@ def test_orientation_consensus_keeps_the_registration_that_agrees_with_the_other
         return register_files(template, paths, folder, config=cfg, n_jobs=1)
 
     records = _orientation_consensus(files, tmp_path, again, CONFIG)
-    assert [bad.stem] in calls
+    # other suspects may be checked in the same batch (here, with the affine
+    # orientation search, apple_002 as a mild outlier: 2.6 mm from the others'
+    # mean, its runner-up 2.7 mm, so its first registration stays)
+    assert any(bad.stem in c for c in calls)
+    for r in records:
+        assert r["kept"] == ("runner-up" if r["runner_up_distance_mm"] < r["distance_mm"] else "first")
     rec = {r["name"]: r for r in records}[bad.stem]
     assert rec["kept"] == "runner-up" and rec["runner_up_distance_mm"] < rec["distance_mm"]
     assert files[bad] == tmp_path / "first-pass-rank1" / f"{bad.stem}.ply"
