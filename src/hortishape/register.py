@@ -25,9 +25,9 @@ One call of :func:`register` does:
    Known limitation: the twist about a fruit's (near-)symmetry axis is only
    weakly determined by the geometry (a cheek 2-5 % fuller on one side of an
    apple, the largest of 3-4 pepper lobes). On a straight zucchini nothing
-   but a slightly bent stalk fixes it: the search residual of twists 30
-   degrees apart differs by 1.5 % at most (measured), and the chosen twist
-   is arbitrary.
+   but a slightly bent stalk fixes it: the search residuals of twelve twists
+   30 degrees apart lie within 2 % of each other (measured), and the chosen
+   twist is arbitrary.
 2. **RN-ICP-T iterations**: normal-ray correspondences with the three filters
    (:mod:`hortishape.correspond`; the crossing filter (c) on the fine level
    only), a least-squares rigid (or, see ``affine``, affine) step on the
@@ -195,7 +195,7 @@ class RegistrationConfig:
         ICP started at the true pose converged 76 degrees away, from every
         start; affine ICP 12 degrees. With ``benchmarks/registration.py`` (4
         targets x 2 poses x 5 classes), ``False`` against ``True``: wrong
-        orientations (more than 45 degrees off) 6 -> 2 of 40 (the two left
+        orientations (more than 45 degrees off) 5 -> 2 of 40 (the two left
         are one straight zucchini, see the module notes); dense
         correspondence error pepper 15.4 / 2.4 -> 1.7 / 2.4 mm (upright /
         random pose), pear 8.3 / 8.3 -> 1.8 / 1.8 mm, apple 2.7 / 3.3 ->
