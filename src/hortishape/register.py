@@ -779,11 +779,13 @@ def _repair_folds(
     out = positions
     lap = level.laplacian
     pairs = level.face_pairs()
+    adj = None
     for k in range(rounds):
         bad = _folded_faces(faces, placed, out, pairs)
         if not bad.any():
             break
-        adj = (lap != 0).astype(np.float64)
+        if adj is None:  # only once there is a fold, and once for all rounds
+            adj = (lap != 0).astype(np.float64)
         region = np.zeros(len(out), dtype=bool)
         region[faces[bad].ravel()] = True
         for _ in range(rings + k):
