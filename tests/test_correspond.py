@@ -11,10 +11,12 @@ from hortishape.correspond import (
     NO_HIT,
     NORMAL,
     correspond,
+    find_correspondences,
     prepare_target,
 )
 from hortishape.errors import MeshError
 from hortishape.mesh import Mesh
+from hortishape.surface import vertex_normals
 
 
 def sphere(radius, centre=(0.0, 0.0, 0.0), level=4):
@@ -76,6 +78,20 @@ def test_filter_c_ray_crossing_the_source_first():
     # the rightmost vertex sees the target's facing side, whose normal opposes
     right = _vertex_at(src, [1, 0, 0])
     assert c.status[right] == NORMAL
+
+
+def test_filter_c_skips_rays_shorter_than_crossing_min_distance():
+    # the longest kept ray (the left vertex's, crossing) is 32 mm long: a
+    # limit below that still runs the test, one above it does not
+    src = sphere(10.0)
+    tgt = prepare_target(sphere(3.0, centre=(25.0, 0.0, 0.0)))
+    left = _vertex_at(src, [-1, 0, 0])
+    n = vertex_normals(src.vertices, src.faces)
+    near = find_correspondences(src.vertices, src.faces, n, tgt, crossing_min_distance=30.0)
+    assert near.status[left] == CROSSING
+    far = find_correspondences(src.vertices, src.faces, n, tgt, crossing_min_distance=35.0)
+    assert far.found[left]
+    np.testing.assert_allclose(far.distances[left], 32.0, atol=0.05)
 
 
 def test_target_crossed_first_is_rejected():

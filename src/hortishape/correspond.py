@@ -299,6 +299,7 @@ def find_correspondences(
     max_angle: float = 30.0,
     max_distance: float = np.inf,
     check_crossings: bool = True,
+    crossing_min_distance: float = 0.0,
 ) -> Correspondences:
     """Array-level core of :func:`correspond` (no input validation; hot path).
 
@@ -313,6 +314,14 @@ def find_correspondences(
     target : TargetSurface
     max_angle, max_distance, check_crossings
         As in :func:`correspond`.
+    crossing_min_distance : float, default: 0.0
+        Filter (c) is skipped when no kept hit is farther than this. A ray
+        shorter than the source's local feature size (about half an edge
+        length) can cross the source only where it folds back on itself
+        within that length; once a registration sits on its target every
+        ray is that short, and skipping the test saves building the
+        source's ray structure. When some hit is farther, every hit is
+        tested (short rays do cross where a surface is crumpled).
 
     Returns
     -------
@@ -344,7 +353,7 @@ def find_correspondences(
     status[hit] = np.where(~ok_normal[hit], NORMAL, np.where(~ok_dist[hit], DISTANCE, KEPT))
     if check_crossings:
         cand = np.flatnonzero(status == KEPT)
-        if len(cand):
+        if len(cand) and t[cand].max() > crossing_min_distance:
             scene = RayScene(sv, faces)
             # start a little off the surface so the vertex's own faces are not hit
             eps = 1e-4 * _scale(sv)
