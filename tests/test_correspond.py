@@ -10,6 +10,7 @@ from hortishape.correspond import (
     KEPT,
     NO_HIT,
     NORMAL,
+    RayScene,
     correspond,
     find_correspondences,
     prepare_target,
@@ -116,3 +117,18 @@ def test_prepared_target_reused_and_inputs_unchanged():
     np.testing.assert_array_equal(a.points, b.points)
     np.testing.assert_array_equal(src.vertices, before)
     assert a.kept_fraction == 1.0 and np.isclose(a.mean_distance, 1.0, atol=0.05)
+
+
+def test_ray_scene_max_distance():
+    s = sphere(10.0)
+    scene = RayScene(s.vertices, s.faces)
+    o = np.zeros((3, 3))
+    d = np.array([[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0]])
+    face, t, _ = scene.first_hit(o, d)
+    assert (face >= 0).all()
+    np.testing.assert_allclose(t, 10.0, atol=0.05)
+    # a limit just at the hit keeps it (no float32 cut), a shorter one drops it
+    face2, t2, bary2 = scene.first_hit(o, d, max_distance=[t[0], 9.0, np.inf])
+    assert face2.tolist() == [face[0], -1, face[2]]
+    assert t2[1] == np.inf and not bary2[1].any()
+    np.testing.assert_allclose(t2[[0, 2]], t[[0, 2]])

@@ -84,13 +84,16 @@ class RayScene:
                 np.ascontiguousarray(self.faces, dtype=np.int32),
             )
 
-    def first_hit(self, origins, directions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def first_hit(self, origins, directions, max_distance=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Nearest hit of each ray.
 
         Parameters
         ----------
         origins, directions : (k, 3) array_like of float
             Ray origins and unit directions.
+        max_distance : (k,) array_like of float, optional
+            Ignore hits farther than this along each ray (``inf``: no limit).
+            A short limit makes a query cheaper.
 
         Returns
         -------
@@ -107,8 +110,13 @@ class RayScene:
         if k == 0:
             return np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 3))
         if self._scene is not None:
+            dists = None
+            if max_distance is not None:
+                lim = np.asarray(max_distance, dtype=np.float64)
+                # float32 round-off must never cut a hit at the limit itself
+                dists = np.minimum(lim * (1.0 + 1e-5) + 1e-4, 1e30).astype(np.float32)
             res = self._scene.run(
-                (o - self._shift).astype(np.float32), d.astype(np.float32), output=1
+                (o - self._shift).astype(np.float32), d.astype(np.float32), dists=dists, output=1
             )
             face = np.asarray(res["primID"], dtype=np.int64)
             u = np.asarray(res["u"], dtype=np.float64)
@@ -134,6 +142,11 @@ class RayScene:
             p = np.einsum("kj,kjd->kd", bary[hit], self.vertices[tri])
             # distance along the ray, recomputed in float64
             t[hit] = np.einsum("kd,kd->k", p - o[hit], d[hit])
+        if max_distance is not None:
+            beyond = t > np.asarray(max_distance, dtype=np.float64)
+            face[beyond] = -1
+            t[beyond] = np.inf
+            bary[beyond] = 0.0
         return face, t, bary
 
 
@@ -333,33 +346,53 @@ def find_correspondences(
     n = len(sv)
     cos_max = np.cos(np.radians(max_angle))
 
-    # both directions at once: rows [0, n) outward, [n, 2n) inward
-    origins = np.concatenate([sv, sv])
+    origins = np.concatenate([sv, sv])  # rows [0, n) outward, [n, 2n) inward
     dirs = np.concatenate([sn, -sn])
-    face, t, bary = tgt.scene.first_hit(origins, dirs)
-    hit = face >= 0
-    # a hit "behind" the origin by round-off counts as distance 0
-    t = np.where(hit, np.maximum(t, 0.0), np.inf)
-    tn = np.zeros((2 * n, 3))
-    if hit.any():
-        tri = tgt.mesh.faces[face[hit]]
-        nn = np.einsum("kj,kjd->kd", bary[hit], tgt.normals[tri])
-        nrm = np.linalg.norm(nn, axis=1, keepdims=True)
-        tn[hit] = np.divide(nn, nrm, out=np.zeros_like(nn), where=nrm > 0)
     src_n2 = np.concatenate([sn, sn])
+    t = np.full(2 * n, np.inf)
+    tn = np.zeros((2 * n, 3))
     status = np.full(2 * n, NO_HIT, dtype=np.int8)
-    ok_normal = np.einsum("kd,kd->k", tn, src_n2) >= cos_max
-    ok_dist = t < max_distance
-    status[hit] = np.where(~ok_normal[hit], NORMAL, np.where(~ok_dist[hit], DISTANCE, KEPT))
-    if check_crossings:
-        cand = np.flatnonzero(status == KEPT)
-        if len(cand) and t[cand].max() > crossing_min_distance:
-            scene = RayScene(sv, faces)
-            # start a little off the surface so the vertex's own faces are not hit
-            eps = 1e-4 * _scale(sv)
-            _, ts, _ = scene.first_hit(origins[cand] + eps * dirs[cand], dirs[cand])
-            crosses = ts + eps < t[cand] - 1e-9
-            status[cand[crosses]] = CROSSING
+
+    def cast(rows: np.ndarray, limit=None) -> None:
+        """Rays ``rows`` against the target, filters (a) and (b)."""
+        face, tr, bary = tgt.scene.first_hit(origins[rows], dirs[rows], max_distance=limit)
+        hit = face >= 0
+        # a hit "behind" the origin by round-off counts as distance 0
+        t[rows] = np.where(hit, np.maximum(tr, 0.0), np.inf)
+        tnr = np.zeros((len(rows), 3))
+        if hit.any():
+            tri = tgt.mesh.faces[face[hit]]
+            nn = np.einsum("kj,kjd->kd", bary[hit], tgt.normals[tri])
+            nrm = np.linalg.norm(nn, axis=1, keepdims=True)
+            tnr[hit] = np.divide(nn, nrm, out=np.zeros_like(nn), where=nrm > 0)
+        tn[rows] = tnr
+        ok_normal = np.einsum("kd,kd->k", tnr, src_n2[rows]) >= cos_max
+        ok_dist = t[rows] < max_distance
+        status[rows] = np.where(~hit, NO_HIT, np.where(~ok_normal, NORMAL, np.where(~ok_dist, DISTANCE, KEPT)))
+
+    def flag_crossings(scene: RayScene, rows: np.ndarray) -> None:
+        """Filter (c): kept hits behind a crossing of the source."""
+        cand = rows[status[rows] == KEPT]
+        # start a little off the surface so the vertex's own faces are not hit
+        eps = 1e-4 * _scale(sv)
+        _, ts, _ = scene.first_hit(origins[cand] + eps * dirs[cand], dirs[cand])
+        status[cand[ts + eps < t[cand] - 1e-9]] = CROSSING
+
+    out_rows = np.arange(n)
+    cast(out_rows)
+    # an inward ray matters only if it is nearer than a kept outward hit, so
+    # it is cast no farther (a short query is cheaper)
+    limit = np.where(status[:n] == KEPT, t[:n], np.inf)
+    cast(out_rows + n, limit)
+    cand = np.flatnonzero(status == KEPT)
+    if check_crossings and len(cand) and t[cand].max() > crossing_min_distance:
+        scene = RayScene(sv, faces)
+        flag_crossings(scene, cand)
+        # an outward hit rejected here cut its inward ray short: cast it in full
+        redo = np.flatnonzero((status[:n] == CROSSING) & np.isfinite(limit)) + n
+        if len(redo):
+            cast(redo)
+            flag_crossings(scene, redo)
     kept2 = status == KEPT
     t_kept = np.where(kept2, t, np.inf)
     # choose per vertex: the nearer kept direction
