@@ -37,6 +37,36 @@ def test_principal_axes_of_ellipsoid():
     assert np.isclose(np.linalg.det(pa.axes), 1.0)
 
 
+def test_surface_principal_axes_do_not_depend_on_the_vertex_spread():
+    # an egg whose triangles on one diagonal half are split into four: the
+    # same surface with its vertices crowded there, as a marching-cubes scan
+    # crowds them where the surface runs obliquely to the voxel grid
+    s = trimesh.creation.icosphere(3)
+    v = s.vertices * [30.0, 20.0, 12.0]
+    v[:, 0] += 0.01 * v[:, 0] ** 2
+    v[:, 1] += 0.02 * v[:, 1] ** 2
+    egg = trimesh.Trimesh(v, s.faces, process=False)
+    crowded_faces = np.flatnonzero(egg.triangles_center @ [1.0, 1.0, 0.0] > 0)
+    crowded = egg.subdivide(crowded_faces)
+    assert len(crowded.vertices) > 1.4 * len(egg.vertices)
+    a = principal_axes(egg.vertices, egg.faces)
+    b = principal_axes(crowded.vertices, crowded.faces)
+    np.testing.assert_allclose(b.centroid, a.centroid, atol=1e-9)
+    np.testing.assert_allclose(b.axes, a.axes, atol=1e-9)
+    np.testing.assert_allclose(b.variances, a.variances, rtol=1e-9)
+    # the vertices' own axes are pulled towards the crowded half
+    pv, pc = principal_axes(egg.vertices), principal_axes(crowded.vertices)
+    assert np.linalg.norm(pc.centroid - pv.centroid) > 5.0  # measured 7.2 mm
+    assert np.degrees(np.arccos(abs(pc.axes[:, 0] @ pv.axes[:, 0]))) > 10.0  # measured 18
+    # candidates built on the surfaces' moments agree too
+    ca = candidate_alignments(egg.vertices, egg.vertices, source_faces=egg.faces, target_faces=egg.faces)
+    cb = candidate_alignments(egg.vertices, crowded.vertices, source_faces=egg.faces, target_faces=crowded.faces)
+    np.testing.assert_allclose(cb, ca, atol=1e-8)
+    np.testing.assert_allclose(ca[0], np.eye(4), atol=1e-9)
+    with pytest.raises(MeshError, match="no area"):
+        principal_axes(np.zeros((4, 3)), [[0, 1, 2], [1, 2, 3]])
+
+
 def test_pca_alignment_recovers_rotation_with_deterministic_signs():
     src = _egg()
     r = rotation_about([1.0, -2.0, 0.5], 2.2)

@@ -66,13 +66,24 @@ def _points(x, name: str) -> np.ndarray:
     return p
 
 
-def principal_axes(vertices) -> PrincipalAxes:
-    """Centroid, covariance and principal axes of a vertex set (eqs. 1-6).
+def principal_axes(vertices, faces=None) -> PrincipalAxes:
+    """Centroid, covariance and principal axes of a vertex set or surface (eqs. 1-6).
 
     Parameters
     ----------
     vertices : (n, 3) array_like of float
         Points (mm), n >= 4.
+    faces : (m, 3) array_like of int, optional
+        Triangles over ``vertices``: the moments are then those of the
+        surface (each point of it weighted by area; exact for the centroid
+        and covariance, triangle centroids for the third moment that fixes
+        the signs) instead of the vertices'. The vertices of a scan's
+        marching-cubes surface are denser where the surface runs obliquely
+        to the voxel grid, so their principal axes depend on how the fruit
+        lay in the scanner: measured on synthetic scans of the same
+        instances in two poses, up to 21 degrees apart for apples and
+        peppers and 40 for a straight zucchini; the surface's agree within
+        0.4 degrees.
 
     Returns
     -------
@@ -85,17 +96,44 @@ def principal_axes(vertices) -> PrincipalAxes:
     >>> pa = principal_axes(pts)
     >>> np.abs(pa.axes[:, 0]).round(1).tolist()
     [1.0, 0.0, 0.0]
+
+    A box surface 4 x 2 x 1: its longest axis comes first, whatever the
+    triangulation.
+
+    >>> import trimesh
+    >>> box = trimesh.creation.box([4.0, 2.0, 1.0])
+    >>> np.abs(principal_axes(box.vertices, box.faces).axes[:, 0]).round(3).tolist()
+    [1.0, 0.0, 0.0]
     """
     p = _points(vertices, "vertices")
-    c = p.mean(axis=0)  # eq. 1 / 2
-    x = p - c
-    cov = x.T @ x / (len(p) - 1)  # eq. 3 / 4
+    if faces is None:
+        c = p.mean(axis=0)  # eq. 1 / 2
+        x = p - c
+        cov = x.T @ x / (len(p) - 1)  # eq. 3 / 4
+        pts, weights = x, None
+    else:
+        f = np.asarray(faces, dtype=np.int64)
+        a, b, d = p[f[:, 0]], p[f[:, 1]], p[f[:, 2]]
+        area = 0.5 * np.linalg.norm(np.cross(b - a, d - a), axis=1)
+        total = area.sum()
+        if not total > 0:
+            raise MeshError("the surface has no area")
+        c = area @ ((a + b + d) / 3.0) / total
+        xa, xb, xd = a - c, b - c, d - c
+        # the second moment of a triangle about c: (s s^T + sum x_i x_i^T) / 12
+        # per unit area, with s the sum of its corners
+        s3 = xa + xb + xd
+        cov = (
+            np.einsum("k,ki,kj->ij", area, s3, s3)
+            + sum(np.einsum("k,ki,kj->ij", area, xi, xi) for xi in (xa, xb, xd))
+        ) / (12.0 * total)
+        pts, weights = s3 / 3.0, area / total
     w, u = np.linalg.eigh(cov)  # eq. 5 / 6 (symmetric: SVD == eigendecomposition)
     order = np.argsort(w)[::-1]
     w, u = w[order], u[:, order]
     # deterministic signs: the heavier tail of the distribution along an axis
-    proj = x @ u
-    skew = (proj**3).mean(axis=0)
+    proj = pts @ u
+    skew = np.average(proj**3, axis=0, weights=weights)
     s = np.where(skew < 0, -1.0, 1.0)
     u = u * s
     u[:, 2] = np.cross(u[:, 0], u[:, 1])  # right-handed, so R stays a rotation
@@ -143,7 +181,7 @@ def rotation_about(axis, angle: float) -> np.ndarray:
     return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * (k @ k)
 
 
-def pca_alignment(source_vertices, target_vertices) -> np.ndarray:
+def pca_alignment(source_vertices, target_vertices, *, source_faces=None, target_faces=None) -> np.ndarray:
     """The paper's initial alignment (eqs. 1-7) with deterministic axis signs.
 
     Eq. 7 is printed as ``R = U_S U_T^T``; for column vectors the rotation that
@@ -154,6 +192,8 @@ def pca_alignment(source_vertices, target_vertices) -> np.ndarray:
     Parameters
     ----------
     source_vertices, target_vertices : (n, 3), (k, 3) array_like of float
+    source_faces, target_faces : array_like of int, optional
+        Triangles: use the surfaces' moments (see :func:`principal_axes`).
 
     Returns
     -------
@@ -169,8 +209,8 @@ def pca_alignment(source_vertices, target_vertices) -> np.ndarray:
     >>> bool(np.allclose(t[:3, :3], r, atol=1e-6))
     True
     """
-    ps = principal_axes(source_vertices)
-    pt = principal_axes(target_vertices)
+    ps = principal_axes(source_vertices, source_faces)
+    pt = principal_axes(target_vertices, target_faces)
     r = pt.axes @ ps.axes.T
     return rigid_transform(r, pt.centroid - r @ ps.centroid)
 
@@ -193,6 +233,8 @@ def candidate_alignments(
     source_up=None,
     target_up=None,
     n_twists: int = 8,
+    source_faces=None,
+    target_faces=None,
 ) -> np.ndarray:
     """Initial rigid alignments to choose among (eq. 7 with all sign/order choices).
 
@@ -214,6 +256,9 @@ def candidate_alignments(
         source and target coordinates. Give both or neither.
     n_twists : int, default: 8
         Twist samples about the hinted axis.
+    source_faces, target_faces : array_like of int, optional
+        Triangles: use the surfaces' moments, which do not depend on how a
+        scan's vertices are spread (see :func:`principal_axes`).
 
     Returns
     -------
@@ -227,8 +272,8 @@ def candidate_alignments(
     >>> candidate_alignments(pts, pts).shape
     (24, 4, 4)
     """
-    ps = principal_axes(source_vertices)
-    pt = principal_axes(target_vertices)
+    ps = principal_axes(source_vertices, source_faces)
+    pt = principal_axes(target_vertices, target_faces)
     if (source_up is None) != (target_up is None):
         raise ValueError("give both source_up and target_up, or neither")
     rots: list[np.ndarray] = []

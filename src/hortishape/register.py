@@ -1248,7 +1248,12 @@ def register(
         t0 = np.eye(4)
     else:
         cands = candidate_alignments(
-            template.mesh.vertices, tgt.mesh.vertices, source_up=reference_up, target_up=target_up
+            template.mesh.vertices,
+            tgt.mesh.vertices,
+            source_up=reference_up,
+            target_up=target_up,
+            source_faces=template.mesh.faces,
+            target_faces=tgt.mesh.faces,
         )
         if cfg.orientation == "pca":
             t0 = cands[0]
