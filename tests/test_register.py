@@ -71,6 +71,13 @@ def test_known_rigid_motion_is_recovered(template, dense):
     assert reg.placed.shape == reg.vertices.shape
     assert np.linalg.norm(reg.placed - truth, axis=1).mean() < 0.05
     assert reg.converged and reg.orientation_index >= 0
+    # the search's best three were judged again on the coarse level; the
+    # others keep no score, and rank 1 starts from the runner-up of that final
+    finite = np.flatnonzero(np.isfinite(reg.orientation_scores))
+    assert len(reg.orientation_scores) == 24 and len(finite) == 3
+    assert reg.orientation_index == finite[np.argmin(reg.orientation_scores[finite])]
+    runner_up = register(template, target, RegistrationConfig(orientation_rank=1, max_iterations=30, n_iterations=3))
+    assert runner_up.orientation_index == finite[np.argsort(reg.orientation_scores[finite])[1]]
     assert len(reg.log) >= 30 and reg.log[0].beta == 50.0
     assert {rec.level for rec in reg.log} >= {"coarse", "fine", "final"}
 
@@ -150,6 +157,8 @@ def test_bad_inputs(template, dense):
     assert RegistrationConfig().warp == "auto"
     with pytest.raises(ValueError, match="orientation_rank"):
         RegistrationConfig(orientation_rank=-1)
+    with pytest.raises(ValueError, match="search_finalists"):
+        RegistrationConfig(search_finalists=0)
     with pytest.raises(ValueError, match="twists"):
         RegistrationConfig(twists=-1)
 
