@@ -142,6 +142,20 @@ ELONGATED = 1.5
 #: the result of one badly registered zucchini, where short rays do cross.
 CROSSING_MIN_EDGES = 0.5
 
+#: The orientation search's stiffness is that of the schedule's start on a
+#: reference of this many vertices (the paper's apple), whatever the
+#: reference's own count. Eq. 8's beta is a smoothing length in edges, so
+#: a search defined at the reference's resolution was stiffer in
+#: millimetres on a coarse reference, and its choice depended on the vertex
+#: count asked for: one pepper came out upside down with a 3,000-20,000
+#: vertex reference and right with 40,000. Measured with the search alone on
+#: the pairs of ``benchmarks/registration.py`` (4 targets x 2 poses x 5
+#: classes, references of 5,000 vertices and of the paper's count), wrong
+#: orientations (more than 45 degrees): 4 of 80 at the reference's
+#: resolution, 0 of 80 at 30,000 vertices; with 0.7, 0.5 or 0.35 times
+#: that stiffness 5, 7 and 14 of 80.
+SEARCH_VERTICES = 30_000
+
 #: Largest turn (degrees) the rigid refinement after the orientation search
 #: may make; the search's candidates lie within about 25 degrees of the truth
 #: when right (measured on apples and peppers), neighbouring lobes 90 apart.
@@ -222,7 +236,10 @@ class RegistrationConfig:
         correspondence error pepper 15.4 / 2.4 -> 1.7 / 2.4 mm (upright /
         random pose), pear 8.3 / 8.3 -> 1.8 / 1.8 mm, apple 2.7 / 3.3 ->
         2.6 / 3.3 mm. Refining from the affine map itself instead of its
-        rotation: apple 3.7 / 6.2, pepper 2.9 / 5.1 mm.
+        rotation: apple 3.7 / 6.2, pepper 2.9 / 5.1 mm. Measured again with
+        the surface's principal axes, ``search_finalists`` and the search
+        stiffness of ``SEARCH_VERTICES``: wrong orientations 7 -> 1 of 40,
+        pepper 24.8 / 11.6 -> 1.6 / 2.1 mm, pear 8.3 / 8.5 -> 1.8 / 1.5 mm.
     twists : int, default: 0
         After the principal-axis candidates, the best one is also tried
         turned about its stalk axis (the principal axis whose variance
@@ -885,10 +902,12 @@ def _search_orientation(
     distance, with vertices without a correspondence counted at a cap.
     """
     lev = template.level(level)
-    fine_h = template.level("fine").edge_length
-    # the stiff part of the schedule (beta 50 -> 12 at the fine resolution)
+    fine = template.level("fine")
+    # the stiff part of the schedule (beta 50 -> 12), at the edge length the
+    # reference would have with SEARCH_VERTICES vertices (see there)
+    nominal_h = fine.edge_length * np.sqrt(len(fine.vertices) / SEARCH_VERTICES)
     betas = np.linspace(cfg.beta_start, 0.25 * cfg.beta_start, cfg.search_iterations)
-    betas = betas * fine_h / lev.edge_length
+    betas = betas * nominal_h / lev.edge_length
     # the crossing filter rarely matters this early and costs a ray scene per step
     scfg = replace(cfg, check_crossings=False)
     v = target.mesh.vertices
