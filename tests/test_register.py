@@ -252,12 +252,8 @@ def test_zucchini_correspondence_does_not_slide_along_a_shorter_target():
     # air (measured here: 2.1 mm dense error now, 33 mm without the centring).
     from hortishape import synth
 
-    ref = synth.make_instance("zucchini", random_state=1000, n_vertices=30000)
-    tgt = synth.make_instance("zucchini", random_state=1004, n_vertices=30000)
-    template = prepare_reference(ref.mesh, 5000)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", ConvergenceWarning)
-        reg = register(template, tgt.mesh)
+    ref, tgt, template = _synthetic_pair("zucchini", 1000, 1004, 5000)
+    reg = _register_quietly(template, tgt.mesh)
     canon = barycentric_interpolate(ref.canonical, ref.mesh.faces, template.source_face_index,
                                     template.source_barycentric)
     truth = synth.true_correspondence(canon, tgt)
@@ -292,17 +288,11 @@ def test_distance_floor_lets_an_overshooting_stalk_tip_land():
     # millimetre, and the paper's filter (b) (distance_floor=0) rejects the
     # tip's hits millimetres away: it stays in the air (measured 8.2 mm from
     # the target's tip; 1.6 mm with the floor of 5 edge lengths).
-    from hortishape import synth
-
-    ref = synth.make_instance("banana", random_state=1000, n_vertices=30000)
-    tgt = synth.make_instance("banana", random_state=1002, n_vertices=30000)
-    template = prepare_reference(ref.mesh, 6000)
+    ref, tgt, template = _synthetic_pair("banana", 1000, 1002, 6000)
     cp = closest_points(template.mesh, ref.landmarks["stalk_tip"][None])
 
     def tip_error(floor):
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", ConvergenceWarning)
-            reg = register(template, tgt.mesh, RegistrationConfig(distance_floor=floor))
+        reg = _register_quietly(template, tgt.mesh, RegistrationConfig(distance_floor=floor))
         tip = barycentric_interpolate(reg.vertices, reg.faces, cp.face_index, cp.barycentric)[0]
         return np.linalg.norm(tip - tgt.landmarks["stalk_tip"])
 
@@ -318,19 +308,11 @@ def test_orientation_search_is_not_fooled_by_width_and_depth():
     # degrees off its true pose that way, and 3 degrees off when the
     # search's global steps are affine (measured; with 5,000, 20,000 or
     # 30,000 vertices both end 3 degrees off).
-    from hortishape import synth
-
-    ref = synth.make_instance("pear", random_state=1000, n_vertices=30000)
-    tgt = synth.make_instance("pear", random_state=1004, n_vertices=30000)
-    template = prepare_reference(ref.mesh, 10000)
-    r_true = tgt.pose[:3, :3] @ ref.pose[:3, :3].T
+    ref, tgt, template = _synthetic_pair("pear", 1000, 1004, 10000)
 
     def error(search_affine):
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", ConvergenceWarning)
-            reg = register(template, tgt.mesh, RegistrationConfig(search_affine=search_affine))
-        r = reg.transform[:3, :3] @ r_true.T
-        return np.degrees(np.arccos(np.clip((np.trace(r) - 1.0) / 2.0, -1.0, 1.0)))
+        reg = _register_quietly(template, tgt.mesh, RegistrationConfig(search_affine=search_affine))
+        return _rotation_error(reg.transform, ref, tgt)
 
     assert RegistrationConfig().search_affine
     assert error(True) < 10.0
@@ -342,13 +324,27 @@ def test_orientation_search_does_not_depend_on_the_reference_resolution():
     # reference's own count. When it was defined at the reference's own
     # resolution, a 3,000-vertex reference made this pepper pair's search
     # stiff enough to turn it upside down (measured: 180 degrees off).
+    ref, tgt, template = _synthetic_pair("pepper", 1000, 1001, 3000)
+    reg = _register_quietly(template, tgt.mesh)
+    assert _rotation_error(reg.transform, ref, tgt) < 10.0  # measured 1.1
+
+
+def _synthetic_pair(product, ref_seed, tgt_seed, points):
+    """A synthetic reference scan resampled to ``points`` vertices, and a target scan (30,000 vertices each)."""
     from hortishape import synth
 
-    ref = synth.make_instance("pepper", random_state=1000, n_vertices=30000)
-    tgt = synth.make_instance("pepper", random_state=1001, n_vertices=30000)
-    template = prepare_reference(ref.mesh, 3000)
+    ref = synth.make_instance(product, random_state=ref_seed, n_vertices=30000)
+    tgt = synth.make_instance(product, random_state=tgt_seed, n_vertices=30000)
+    return ref, tgt, prepare_reference(ref.mesh, points)
+
+
+def _register_quietly(template, target, config=None):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
-        reg = register(template, tgt.mesh)
-    r = reg.transform[:3, :3] @ (tgt.pose[:3, :3] @ ref.pose[:3, :3].T).T
-    assert np.degrees(np.arccos(np.clip((np.trace(r) - 1.0) / 2.0, -1.0, 1.0))) < 10.0  # measured 1.1
+        return register(template, target, config)
+
+
+def _rotation_error(transform, ref, tgt) -> float:
+    """Degrees between the rotation of ``transform`` and the true one from ``ref`` to ``tgt``."""
+    r = transform[:3, :3] @ (tgt.pose[:3, :3] @ ref.pose[:3, :3].T).T
+    return float(np.degrees(np.arccos(np.clip((np.trace(r) - 1.0) / 2.0, -1.0, 1.0))))

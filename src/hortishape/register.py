@@ -4,13 +4,17 @@ A reference (template) surface is deformed onto a target surface so that each
 reference vertex lands on the anatomically corresponding place of the target.
 One call of :func:`register` does:
 
-1. **Initial alignment** (section 2.2.1, eqs. 1-7). The principal axes do not
+1. **Initial alignment** (section 2.2.1, eqs. 1-7), on the principal axes of
+   the surfaces (area-weighted; a scan's vertex density depends on its pose
+   in the scanner). The principal axes do not
    fix the signs and, for round fruit, the order of the axes, so every proper
    rotation between the two sets of axes (24, see
    :func:`hortishape.align.candidate_alignments`) is tried with a short, stiff
-   elastic registration of a very coarse reference (800 vertices); the one
-   with the lowest residual is kept (optionally, ``twists``, the winner is
-   tried again turned about its stalk axis in equal steps). The global steps
+   elastic registration of a very coarse reference (800 vertices, with the
+   stiffness of a ``SEARCH_VERTICES`` one; optionally, ``twists``, the
+   winner is also tried turned about its stalk axis in equal steps); the
+   best ``search_finalists`` are tried again on the coarse level, and the one
+   with the lowest residual there is kept. The global steps
    of these short registrations are affine (``search_affine``): the width
    and depth of a fruit vary independently of its anatomy, and a rigid fit
    turns the reference to lay its wider side along the scan's. The rotation
