@@ -215,10 +215,11 @@ def _add_registration_options(p) -> None:
     g.add_argument("--orientation", choices=["search", "pca", "none"], default="search",
                    help="initial alignment: try all principal-axis rotations and keep the best after a "
                         "short elastic fit (search), the paper's eq. 7 alone (pca), or none")
-    g.add_argument("--warp", choices=["auto", "affine", "quadratic", "none"], default="auto",
+    g.add_argument("--warp", choices=["auto", "affine", "taper", "quadratic", "none"], default="auto",
                    help="the initializing global step before the elastic ones: affine (the paper's), "
-                        "quadratic (also taper and bend), auto (quadratic for elongated references such "
-                        "as zucchini, banana or pear, affine for round ones), or none")
+                        "taper (affine plus a widening or narrowing along the fruit's axis), quadratic "
+                        "(also bend), auto (quadratic for elongated references such as zucchini, banana "
+                        "or pear, taper for round ones), or none")
 
 
 def _registration_config(args):
