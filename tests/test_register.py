@@ -233,8 +233,10 @@ def test_taper_warp_takes_up_a_taper(template, dense):
     # sliding the surface up or down the sides. The full quadratic map could,
     # but on a round body it explains the taper as much by a bulge along the
     # axis (its terms along the axis: measured 0.05-0.06 against a true 0),
-    # which slides the surface too. Measured: 0.27 mm (taper), 2.2 (affine),
-    # 2.5 (quadratic).
+    # which slides the surface too. Measured: 0.93 mm (taper), 2.2 (affine),
+    # 2.5 (quadratic). The taper's axis comes from the egg's one pit, whose
+    # lopsided top puts it 4 degrees off the true axis (0.27 mm about the
+    # true axis).
     def taper(v):
         return v * np.c_[1.0 + 0.15 * v[:, 2:] / 28.0, 1.0 + 0.15 * v[:, 2:] / 28.0, np.ones((len(v), 1))]
 
@@ -245,9 +247,23 @@ def test_taper_warp_takes_up_a_taper(template, dense):
         reg = register(template, target, RegistrationConfig(warp=warp, orientation="none"))
         return np.linalg.norm(reg.vertices - truth, axis=1).mean()
 
-    assert error("taper") < 0.4
+    assert error("taper") < 1.2
     assert error("affine") > 1.5
     assert error("quadratic") > 1.5
+
+
+def test_concavity_axis_finds_the_axis_through_the_pits():
+    from hortishape.register import _concavity_axis, _Level
+
+    # a sphere (no axis of its own) with a pit at each pole, then turned: the
+    # axis through the pits is the turned z axis
+    s = trimesh.creation.icosphere(4)
+    v = s.vertices.copy()
+    v *= (1.0 - 0.2 * np.exp(-((1.0 - np.abs(v[:, 2])) / 0.05)))[:, None]
+    r = rotation_about([1.0, 2.0, 0.5], 0.7)
+    lev = _Level.build(Mesh(v @ r.T * 40.0, s.faces))
+    a = _concavity_axis(lev, lev.vertices)
+    assert abs(a @ (r @ [0.0, 0.0, 1.0])) > np.cos(np.radians(1.0))
 
 
 def test_twist_candidates_keep_a_right_answer(template, dense):
