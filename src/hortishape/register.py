@@ -541,7 +541,7 @@ class _Level:
         )
         lap = (inc.T @ inc).tocsr()
         lap.sort_indices()
-        h = float(np.linalg.norm(mesh.vertices[e[:, 0]] - mesh.vertices[e[:, 1]], axis=1).mean())
+        h = float(np.linalg.norm(inc @ mesh.vertices, axis=1).mean())  # the mean edge length
         return _Level(mesh.vertices, mesh.faces, lap, h)
 
 
