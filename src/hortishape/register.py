@@ -138,23 +138,23 @@ WARP_MIN_GAIN = 0.005
 #: round fruit the second-order terms are barely seen and slide the surface).
 ELONGATED = 1.5
 
-#: Damping of the warp's Gauss-Newton steps (``warp_ridge="auto"``) for a
+#: Damping of the warp's Gauss-Newton steps (``warp_ridge="auto"``): for a
 #: round reference without lobes, and for every other one. On a round fruit
 #: the residual barely sees the turn about the stalk axis: an apple's twist
 #: shows only in a cheek 2-5 % fuller on one side. The stronger damping kept
 #: the search's twist (1-4 degrees off on the benchmark's apples, about 0.7 mm
 #: of dense error per degree); the weaker one lets the two-sided fit find it
-#: (measured from the true pose turned 4 degrees: back to within 0.1-1.6
-#: degrees, against 3.1-3.7 with 0.05). Benchmark apples, dense error
-#: upright / random: 0.83 / 1.33 mm with 0.05, 0.63 / 0.90 with 0.01,
-#: 0.52 / 0.55 with 0.001. On a lobed reference the free twist turns the
-#: lobes onto those of a target with another lobe count (peppers, random
-#: pose: 1.47 -> 2.76 mm, one turned 14 degrees), and on elongated ones the
-#: other terms wander (zucchini 6.9 -> 10.3 mm): those keep 0.05.
+#: (measured, the warp alone from the true pose turned 4 degrees: back to
+#: within 0.1-1.6 degrees, against 3.1-3.7 with 0.05). Benchmark apples,
+#: dense error upright / random: 0.83 / 1.33 mm with 0.05, 0.63 / 0.90 with
+#: 0.01, 0.52 / 0.55 with 0.001. On a lobed reference the free twist turns
+#: the lobes onto those of a target with another lobe count (peppers, random
+#: pose: 1.47 -> 2.76 mm, one turned 14 degrees), and with the quadratic warp
+#: of elongated ones the other terms wander (zucchini 6.9 -> 10.3 mm): those
+#: keep 0.05, and so does the affine warp, not measured with the weak one.
 ROUND_RIDGE = 0.001
 LOBED_RIDGE = 0.05
 
-#: (``"auto"`` takes ``ROUND_RIDGE`` only with the taper warp: the one measured.)
 #: A reference is lobed if an angular harmonic of order 3 or more of its
 #: radius about the stalk axis (relative to the mean radius, over the middle
 #: 60 % of its height; :func:`_lobes`) is at least this. Measured on the
@@ -1171,6 +1171,8 @@ def _lobes(vertices: np.ndarray, axis: np.ndarray, orders: range = range(3, 9), 
     band = np.searchsorted(edges, h, side="right") - 1
     for b in range(bands):
         m = band == b
+        if m.sum() <= 2 * k.shape[1]:  # too few vertices in the slice to fit its harmonics
+            continue
         design = np.hstack([np.ones((m.sum(), 1)), np.cos(k * phi[m, None]), np.sin(k * phi[m, None])])
         coef, *_ = np.linalg.lstsq(design, radius[m], rcond=None)
         amp += (coef[1 : 1 + k.shape[1]] + 1j * coef[1 + k.shape[1] :]) / coef[0] / bands
