@@ -233,6 +233,11 @@ def main(argv=None):
         help="RegistrationConfig options (values parsed as JSON, else strings), e.g. affine=none",
     )
     args = ap.parse_args(argv)
+    if args.baseline > 0:
+        import importlib.util
+
+        if importlib.util.find_spec("rtree") is None:
+            ap.error("the nricp_amberg baseline needs rtree: pip install '.[bench]' (or --baseline 0)")
     config = {}
     for kv in args.config:
         k, v = kv.split("=", 1)
