@@ -22,8 +22,10 @@ instances are targets. Per class it prints:
   placed reference (``Registration.placed``: rigid placement and warp), or
   from a neighbour (the surface turns back on itself).
 
-The same figures for trimesh's ``nricp_amberg`` (started from the same rigid
-alignment) on the first ``--baseline`` pairs per class.
+The same figures for trimesh's ``nricp_amberg`` on the first ``--baseline``
+pairs per class (``pip install '.[bench]'``), started from our registration's
+global transform (rigid placement and the affine part of the warp): the
+orientation it could not find itself.
 
 Run::
 
@@ -180,7 +182,7 @@ def run_class(product, pose, files, n_baseline, config=None):
         import trimesh.registration
 
         src = template.mesh.to_trimesh()
-        src.apply_transform(transform)  # the same rigid start as ours
+        src.apply_transform(transform)  # our global placement (rigid and the warp's affine part)
         t0 = time.perf_counter()
         v = trimesh.registration.nricp_amberg(src, tgt["mesh"].to_trimesh())
         bsec = time.perf_counter() - t0
