@@ -30,10 +30,11 @@ One call of :func:`register` does:
    (``WARP_MIN_GAIN``).
    Known limitation: the twist about a fruit's (near-)symmetry axis is only
    weakly determined by the geometry (a cheek 2-5 % fuller on one side of an
-   apple, the largest of 3-4 pepper lobes). On a straight zucchini nothing
-   but a slightly bent stalk fixes it: the search residuals of twelve twists
-   30 degrees apart lie within 2 % of each other (measured), and the chosen
-   twist is arbitrary.
+   apple, the largest of 3-4 pepper lobes); for a round reference without
+   lobes the warp is damped weakly enough to find it (``ROUND_RIDGE``). On a
+   straight zucchini little but a slightly bent stalk fixes it: the search
+   residuals of twelve twists 30 degrees apart lie within 2 % of each other
+   (measured), and the registration follows the stalk.
 2. **RN-ICP-T iterations**: normal-ray correspondences with the three filters
    (:mod:`hortishape.correspond`; the crossing filter (c) on the fine level
    only), a least-squares rigid (or, see ``affine``, affine) step on the
@@ -1146,6 +1147,14 @@ def _concavity_axis(lev: _Level, positions: np.ndarray, fraction: float = 0.1) -
     return vec[:, -1]
 
 
+def _axis_frame(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``axis`` made unit, and two unit vectors across it: a right-handed frame ``(a, p1, p2)``."""
+    a = axis / np.linalg.norm(axis)
+    p1 = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+    p1 /= np.linalg.norm(p1)
+    return a, p1, np.cross(a, p1)
+
+
 def _lobes(vertices: np.ndarray, axis: np.ndarray, orders: range = range(3, 9), bands: int = 8) -> float:
     """The largest angular harmonic of order in ``orders`` of the radius about ``axis``.
 
@@ -1159,11 +1168,9 @@ def _lobes(vertices: np.ndarray, axis: np.ndarray, orders: range = range(3, 9), 
     to bottom) and the largest modulus is returned: lobes 10 % deeper than
     the valleys between them give 0.05.
     """
-    a = axis / np.linalg.norm(axis)
-    p1 = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
-    p1 /= np.linalg.norm(p1)
+    a, p1, p2 = _axis_frame(axis)
     x = vertices - vertices.mean(axis=0)
-    h, u, w = x @ a, x @ p1, x @ np.cross(a, p1)
+    h, u, w = x @ a, x @ p1, x @ p2
     radius, phi = np.hypot(u, w), np.arctan2(w, u)
     k = np.arange(1, max(orders) + 1)[None, :]
     amp = np.zeros(k.shape[1], dtype=complex)
@@ -1191,10 +1198,7 @@ def _taper_basis(axis: np.ndarray) -> np.ndarray:
     the residual of a round fruit barely sees). Outputs along the axis and
     all other second-order terms stay zero.
     """
-    a = axis / np.linalg.norm(axis)
-    p1 = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
-    p1 /= np.linalg.norm(p1)
-    p2 = np.cross(a, p1)
+    a, p1, p2 = _axis_frame(axis)
 
     def term(out: np.ndarray, form: np.ndarray) -> np.ndarray:
         c = np.zeros((10, 3))
