@@ -427,13 +427,38 @@ def test_orientation_search_is_not_fooled_by_a_taper():
     # global step the body fits either way and the right end wins.
     ref, tgt, template = _synthetic_pair("pepper", 1000, 1007, 10000)
 
-    def error(search_taper):
-        reg = _register_quietly(template, tgt.mesh, RegistrationConfig(search_taper=search_taper))
+    def error(search_taper, coverage_check=False):
+        cfg = RegistrationConfig(search_taper=search_taper, coverage_check=coverage_check)
+        reg = _register_quietly(template, tgt.mesh, cfg)
         return _rotation_error(reg.transform, ref, tgt)
 
     assert RegistrationConfig().search_taper == "auto"
     assert error("auto") < 10.0
     assert error(False) > 135.0
+    # the coverage check catches the flip: the scan's stalk is left uncovered
+    assert error(False, coverage_check=True) < 10.0
+
+
+def test_uncovered_fraction_and_alternative_rank():
+    from hortishape.correspond import prepare_target
+    from hortishape.register import _alternative_rank, _uncovered_fraction
+
+    s = trimesh.creation.icosphere(5, radius=40.0)  # edges of 1.4-1.7 mm
+    ball = Registration(s.vertices, s.faces, np.eye(4), (), True)
+    assert _uncovered_fraction(ball, prepare_target(Mesh(s.vertices, s.faces)), 0.5) == 0.0
+    # a scan 20 % longer than the registered ball: a vertex of it more than
+    # 42 mm from the centre is more than 2 mm from the ball's surface, so from
+    # every vertex of the ball; one less than 41 mm from the centre is within
+    # 2 mm of a vertex (every point of the ball is within 1 mm of one)
+    long = s.vertices * [1.0, 1.0, 1.2]
+    radius = np.linalg.norm(long, axis=1)
+    got = _uncovered_fraction(ball, prepare_target(Mesh(long, s.faces)), 2.0)
+    assert 0.2 < (radius > 42.0).mean() <= got <= (radius > 41.0).mean()
+    # the alternative: the best-ranked candidate turned by more than 45 degrees
+    turns = [rigid_transform(rotation_about([1.0, 0.0, 0.0], np.radians(a)), np.zeros(3)) for a in (0, 10, 180, 90)]
+    order = np.array([0, 1, 3, 2])
+    assert _alternative_rank(order, 0, np.stack(turns), ball.vertices) == 2
+    assert _alternative_rank(np.array([0, 1]), 0, np.stack(turns[:2]), ball.vertices) is None
 
 
 def test_search_taper_is_only_for_round_references():
