@@ -315,7 +315,8 @@ class RegistrationConfig:
         ends apart (a zucchini's club). Measured with
         ``benchmarks/registration.py --n 21`` (20 targets x 2 poses per
         class): without it 4 of 20 peppers came out upside down in both
-        poses (their tops 9-13 % wider, the reference's 7 % narrower; dense
+        poses (their tops 9-13 % wider than their middle, the reference's
+        7 % narrower; dense
         error 15.0 / 15.4 mm upright / random), with it one in the random
         pose (a pepper wider than tall whose two ends scored within 0.1 %;
         ``coverage_check`` catches it); on zucchini it turned one end over
