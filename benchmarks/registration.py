@@ -91,10 +91,6 @@ def _load(fn):
     return dict(mesh=Mesh(d["v"], d["f"]), canonical=d["c"], pose=d["pose"], stalk=d["stalk"], bottom=d["bottom"])
 
 
-def _angle(r):
-    return float(np.degrees(np.arccos(np.clip((np.trace(r) - 1) / 2, -1, 1))))
-
-
 def _measure(vertices, faces, ref_global, template, canon, lm_loc, tgt):
     from hortishape.align import apply_transform, rigid_fit
     from hortishape.mesh import Mesh
@@ -149,6 +145,7 @@ def _peak_rss_mb() -> float:
 def run_class(product, pose, files, n_baseline, config=None):
     """Worker: prepare the reference, register every target, measure (separate process)."""
     warnings.simplefilter("ignore")
+    from hortishape.align import rotation_angle
     from hortishape.register import RegistrationConfig, prepare_reference, register
     from hortishape.surface import barycentric_interpolate, closest_points
 
@@ -173,7 +170,7 @@ def run_class(product, pose, files, n_baseline, config=None):
         ax = np.degrees(np.arccos(np.clip((reg.transform[:3, :3] @ ref["pose"][:3, 2]) @ tgt["pose"][:3, 2], -1, 1)))
         ref_global = reg.placed  # after the warp: the surface the elastic displacement starts from
         m = _measure(reg.vertices, reg.faces, ref_global, template, canon, lm_loc, tgt)
-        m.update(sec=sec, axis=float(ax), rot=_angle(reg.transform[:3, :3] @ r_true.T), its=len(reg.log))
+        m.update(sec=sec, axis=float(ax), rot=rotation_angle(reg.transform[:3, :3] @ r_true.T), its=len(reg.log))
         rows.append(m)
         starts.append((tgt, reg.transform))
     # peak of this process so far: the reference preparation and our registrations

@@ -12,6 +12,7 @@ from hortishape.align import (
     rigid_fit,
     rigid_transform,
     rotation_about,
+    rotation_angle,
 )
 from hortishape.errors import MeshError
 
@@ -126,3 +127,10 @@ def test_inputs_not_mutated_and_bad_input():
         principal_axes(np.zeros((2, 3)))
     with pytest.raises(MeshError):
         principal_axes(np.full((10, 3), np.nan))
+
+
+def test_rotation_angle():
+    assert rotation_angle(np.eye(3)) == 0.0
+    for degrees in (0.5, 45.0, 120.0, 180.0):
+        r = rotation_about([0.3, -1.0, 2.0], np.radians(degrees))
+        assert abs(rotation_angle(r) - degrees) < 1e-6

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from hortishape.align import apply_transform, rigid_transform, rotation_about
+from hortishape.align import apply_transform, rigid_transform, rotation_about, rotation_angle
 from hortishape.errors import ConvergenceWarning, MeshError
 from hortishape.mesh import Mesh
 from hortishape.register import (
@@ -516,5 +516,4 @@ def _register_quietly(template, target, config=None):
 
 def _rotation_error(transform, ref, tgt) -> float:
     """Degrees between the rotation of ``transform`` and the true one from ``ref`` to ``tgt``."""
-    r = transform[:3, :3] @ (tgt.pose[:3, :3] @ ref.pose[:3, :3].T).T
-    return float(np.degrees(np.arccos(np.clip((np.trace(r) - 1.0) / 2.0, -1.0, 1.0))))
+    return rotation_angle(transform[:3, :3] @ (tgt.pose[:3, :3] @ ref.pose[:3, :3].T).T)

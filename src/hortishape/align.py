@@ -32,6 +32,7 @@ __all__ = [
     "rigid_fit",
     "rigid_transform",
     "rotation_about",
+    "rotation_angle",
 ]
 
 
@@ -179,6 +180,18 @@ def rotation_about(axis, angle: float) -> np.ndarray:
     a = a / np.linalg.norm(a)
     k = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
     return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * (k @ k)
+
+
+def rotation_angle(rotation) -> float:
+    """The angle in degrees of a ``(3, 3)`` rotation matrix (how far it turns about its axis).
+
+    Examples
+    --------
+    >>> round(rotation_angle(rotation_about([1, 1, 0], np.radians(30))), 6)
+    30.0
+    """
+    r = np.asarray(rotation, dtype=np.float64)
+    return float(np.degrees(np.arccos(np.clip((np.trace(r) - 1.0) / 2.0, -1.0, 1.0))))
 
 
 def pca_alignment(source_vertices, target_vertices, *, source_faces=None, target_faces=None) -> np.ndarray:

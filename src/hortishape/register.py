@@ -102,7 +102,15 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .align import apply_transform, candidate_alignments, principal_axes, rigid_fit, rigid_transform, rotation_about
+from .align import (
+    apply_transform,
+    candidate_alignments,
+    principal_axes,
+    rigid_fit,
+    rigid_transform,
+    rotation_about,
+    rotation_angle,
+)
 from .correspond import TargetSurface, find_correspondences, prepare_target
 from .errors import ConvergenceWarning, MeshError
 from .mesh import Mesh
@@ -1140,7 +1148,7 @@ def _refine_rigid(
     # (measured on peppers: a candidate 2 degrees from the truth ended 88
     # degrees off): the search's elastic fit judged that candidate, keep it.
     r = _rigid_part(t, lev.vertices)[:3, :3] @ _rigid_part(transform, lev.vertices)[:3, :3].T
-    if _turn_degrees(r) > MAX_REFINE_TURN:
+    if rotation_angle(r) > MAX_REFINE_TURN:
         return transform
     return t
 
@@ -1737,14 +1745,9 @@ def _alternative_rank(order: np.ndarray, chosen: int, transforms: np.ndarray, po
     """Rank in ``order`` of the best candidate turned more than ``ALTERNATIVE_TURN`` from ``chosen``."""
     r0 = _rigid_part(transforms[chosen], points)[:3, :3]
     for rank, k in enumerate(order):
-        if _turn_degrees(_rigid_part(transforms[k], points)[:3, :3] @ r0.T) > ALTERNATIVE_TURN:
+        if rotation_angle(_rigid_part(transforms[k], points)[:3, :3] @ r0.T) > ALTERNATIVE_TURN:
             return rank
     return None
-
-
-def _turn_degrees(r: np.ndarray) -> float:
-    """The angle of the rotation matrix ``r``, in degrees."""
-    return float(np.degrees(np.arccos(np.clip((np.trace(r) - 1.0) / 2.0, -1.0, 1.0))))
 
 
 def _uncovered_fraction(reg: Registration, target: TargetSurface, distance: float, samples: int = 20_000) -> float:
