@@ -1552,13 +1552,6 @@ def register(
     _check_units(template.mesh.vertices, tgt.mesh.vertices)
     fine = template.level("fine")
     coarse = template.level("coarse")
-    log: list[IterationRecord] = []
-
-    def record(it: int, level: str, beta: float, d: float, kept: float, t0: float) -> None:
-        rec = IterationRecord(it, level, float(beta), float(d), float(kept), time.perf_counter() - t0)
-        log.append(rec)
-        if callback is not None:
-            callback(rec)
 
     # --- initial alignment ---------------------------------------------------
     scores = np.zeros(0)
@@ -1607,125 +1600,121 @@ def register(
                 order = np.lexsort((search_scores, scores))
             chosen = int(order[min(cfg.orientation_rank, len(order) - 1)])
             alternative = _alternative_rank(order, chosen, transforms, coarse.vertices)
-            # refine the rotation only: the search's affine part has served
-            # to judge the candidates, and the warp below fits size and shape
-            t0 = _rigid_part(transforms[chosen], coarse.vertices)
-            refined = _refine_rigid(coarse, t0, tgt, cfg)
-            if not np.array_equal(refined, t0):
-                # the refinement is judged as the candidates were. Measured
-                # (benchmarks/registration.py, 4 targets x 2 poses x 5
-                # classes, and a 30-apple build): the stiff search leaves
-                # apples tilted 15-22 degrees, which the refinement undoes
-                # (coarse score 0.62 -> 0.24); but a rigid fit of a bent
-                # zucchini or banana tilts the reference 3-15 degrees, and
-                # it twisted three right apple orientations 8-26 degrees;
-                # the score said so each time (it missed one pepper's
-                # 2-degree twist)
-                judged, _ = _search_orientation(template, tgt, np.stack([t0, refined]), cfg, level="coarse")
-                if judged[1] < judged[0]:
-                    t0 = refined
-    # the undeformed reference in the target's frame: rigidly placed, then
-    # (optionally) through the global polynomial map; the loop's global steps
-    # and elastic displacements start from here
-    base_c = apply_transform(t0, coarse.vertices)
-    base_f = apply_transform(t0, fine.vertices)
-    warp_affine = np.eye(4)
-    kind = _warp_kind(cfg.warp, template.mesh.vertices)
-    warp = None
-    if kind != "none":
-        warp = _fit_warp(coarse, base_c, tgt, cfg, kind, ridge=_warp_ridge(cfg, kind, coarse))
-    if warp is not None:
-        base_c, base_f = warp(base_c), warp(base_f)
-        warp_affine = warp.affine(apply_transform(t0, fine.vertices))
+            t0 = _refined_start(template, tgt, transforms[chosen], cfg)
+    def run(t0: np.ndarray, chosen: int) -> Registration:
+        """The registration from the rigid placement ``t0`` (search candidate ``chosen``)."""
+        log: list[IterationRecord] = []
 
-    # --- schedule ------------------------------------------------------------
-    betas = cfg.betas()
-    ratio = fine.edge_length / coarse.edge_length
-    on_coarse = cfg.multiresolution and template.coarse is not template.mesh
-    state = _State((base_c if on_coarse else base_f).copy(), np.eye(4))
-    level_name = "coarse" if on_coarse else "fine"
-    # filter (c) only on the fine level: a stiff coarse surface does not fold
-    # back on itself, and the filter costs a ray scene of the source per step
-    cfg_coarse = replace(cfg, check_crossings=False, max_angle=min(cfg.max_angle + COARSE_ANGLE_SLACK, 90.0))
-    converged = False
-    it = 0
-    prev_d = np.inf
-    while it < cfg.max_iterations:
-        t_it = time.perf_counter()
-        beta = betas[it] if it < len(betas) else cfg.beta_end
-        if level_name == "coarse" and beta * ratio < COARSE_MIN_BETA:
-            # switch to the full-resolution reference for the elastic end game
-            state = _State(_coarse_to_fine(template, state, base_c, base_f), state.transform, state.prev_distance)
-            level_name = "fine"
-        lev = coarse if level_name == "coarse" else fine
-        beta_level = beta * (ratio if level_name == "coarse" else 1.0)
-        d_t, kept = _iterate(
-            lev,
-            state,
-            tgt,
-            beta_level,
-            cfg if level_name == "fine" else cfg_coarse,
-            use_pcg=level_name == "fine",
-            rigid=cfg.rigid_steps,
-            affine=cfg.affine == "all" or (cfg.affine == "stiff" and beta * ratio >= COARSE_MIN_BETA),
-            prolong=template.prolongation() if on_coarse else None,
-        )
-        record(it, level_name, beta, d_t, kept, t_it)
-        if not np.isfinite(d_t):
-            raise MeshError(
-                "registration lost the target: fewer than 3 correspondences "
-                "(are the surfaces far apart or in different units?)"
+        def record(it: int, level: str, beta: float, d: float, kept: float, t0: float) -> None:
+            rec = IterationRecord(it, level, float(beta), float(d), float(kept), time.perf_counter() - t0)
+            log.append(rec)
+            if callback is not None:
+                callback(rec)
+
+        # the undeformed reference in the target's frame: rigidly placed, then
+        # (optionally) through the global polynomial map; the loop's global steps
+        # and elastic displacements start from here
+        base_c = apply_transform(t0, coarse.vertices)
+        base_f = apply_transform(t0, fine.vertices)
+        warp_affine = np.eye(4)
+        kind = _warp_kind(cfg.warp, template.mesh.vertices)
+        warp = None
+        if kind != "none":
+            warp = _fit_warp(coarse, base_c, tgt, cfg, kind, ridge=_warp_ridge(cfg, kind, coarse))
+        if warp is not None:
+            base_c, base_f = warp(base_c), warp(base_f)
+            warp_affine = warp.affine(apply_transform(t0, fine.vertices))
+
+        # --- schedule ------------------------------------------------------------
+        betas = cfg.betas()
+        ratio = fine.edge_length / coarse.edge_length
+        on_coarse = cfg.multiresolution and template.coarse is not template.mesh
+        state = _State((base_c if on_coarse else base_f).copy(), np.eye(4))
+        level_name = "coarse" if on_coarse else "fine"
+        # filter (c) only on the fine level: a stiff coarse surface does not fold
+        # back on itself, and the filter costs a ray scene of the source per step
+        cfg_coarse = replace(cfg, check_crossings=False, max_angle=min(cfg.max_angle + COARSE_ANGLE_SLACK, 90.0))
+        converged = False
+        it = 0
+        prev_d = np.inf
+        while it < cfg.max_iterations:
+            t_it = time.perf_counter()
+            beta = betas[it] if it < len(betas) else cfg.beta_end
+            if level_name == "coarse" and beta * ratio < COARSE_MIN_BETA:
+                # switch to the full-resolution reference for the elastic end game
+                state = _State(_coarse_to_fine(template, state, base_c, base_f), state.transform, state.prev_distance)
+                level_name = "fine"
+            lev = coarse if level_name == "coarse" else fine
+            beta_level = beta * (ratio if level_name == "coarse" else 1.0)
+            d_t, kept = _iterate(
+                lev,
+                state,
+                tgt,
+                beta_level,
+                cfg if level_name == "fine" else cfg_coarse,
+                use_pcg=level_name == "fine",
+                rigid=cfg.rigid_steps,
+                affine=cfg.affine == "all" or (cfg.affine == "stiff" and beta * ratio >= COARSE_MIN_BETA),
+                prolong=template.prolongation() if on_coarse else None,
             )
-        it += 1
-        if it >= len(betas) and np.isfinite(prev_d):
-            change = abs(d_t - prev_d)
-            # the paper's relative test, or a change below `tolerance` edge
-            # lengths: once the surface sits on the target d_t keeps halving
-            # and the relative test alone would never pass
-            if change < cfg.tolerance * d_t or change < cfg.tolerance * fine.edge_length:
-                converged = True
-                break
-        prev_d = d_t
-    if level_name == "coarse":  # only if the schedule never reached fine stiffness
-        state = _State(_coarse_to_fine(template, state, base_c, base_f), state.transform, state.prev_distance)
-    if not converged:
-        warnings.warn(
-            f"registration stopped at max_iterations={cfg.max_iterations} before "
-            f"|d_t - d_t-1| / d_t < {cfg.tolerance}",
-            ConvergenceWarning,
-            stacklevel=2,
+            record(it, level_name, beta, d_t, kept, t_it)
+            if not np.isfinite(d_t):
+                raise MeshError(
+                    "registration lost the target: fewer than 3 correspondences "
+                    "(are the surfaces far apart or in different units?)"
+                )
+            it += 1
+            if it >= len(betas) and np.isfinite(prev_d):
+                change = abs(d_t - prev_d)
+                # the paper's relative test, or a change below `tolerance` edge
+                # lengths: once the surface sits on the target d_t keeps halving
+                # and the relative test alone would never pass
+                if change < cfg.tolerance * d_t or change < cfg.tolerance * fine.edge_length:
+                    converged = True
+                    break
+            prev_d = d_t
+        if level_name == "coarse":  # only if the schedule never reached fine stiffness
+            state = _State(_coarse_to_fine(template, state, base_c, base_f), state.transform, state.prev_distance)
+        if not converged:
+            warnings.warn(
+                f"registration stopped at max_iterations={cfg.max_iterations} before "
+                f"|d_t - d_t-1| / d_t < {cfg.tolerance}",
+                ConvergenceWarning,
+                stacklevel=3,
+            )
+
+        # --- closing step: land matched vertices on the target -------------------
+        if cfg.final_beta is not None:
+            t_it = time.perf_counter()
+            old = state.positions
+            corr = _match(old, fine.faces, tgt, cfg, max_distance=_max_distance(cfg, state.prev_distance, fine),
+                          check_crossings=cfg.check_crossings, edge_length=fine.edge_length)
+            w = corr.found.astype(np.float64)
+            rhs = np.where(corr.found[:, None], corr.points - old, 0.0)
+            x = _solve_pcg(fine.laplacian, cfg.final_beta, w, rhs, rhs, tol=1e-8)
+            state.positions = _unfold_step(fine.faces, old, old + x)
+            record(it, "final", cfg.final_beta, corr.mean_distance, corr.kept_fraction, t_it)
+        placed = apply_transform(state.transform, base_f)
+        state.positions = _repair_folds(fine, placed, state.positions)
+
+        verts = state.positions
+        verts.flags.writeable = False
+        placed.flags.writeable = False
+        total = state.transform @ warp_affine @ t0
+        return Registration(
+            verts,
+            template.mesh.faces,
+            _rigid_part(total, template.mesh.vertices),
+            tuple(log),
+            converged,
+            scores,
+            chosen,
+            time.perf_counter() - t_start,
+            affine=total,
+            placed=placed,
         )
 
-    # --- closing step: land matched vertices on the target -------------------
-    if cfg.final_beta is not None:
-        t_it = time.perf_counter()
-        old = state.positions
-        corr = _match(old, fine.faces, tgt, cfg, max_distance=_max_distance(cfg, state.prev_distance, fine),
-                      check_crossings=cfg.check_crossings, edge_length=fine.edge_length)
-        w = corr.found.astype(np.float64)
-        rhs = np.where(corr.found[:, None], corr.points - old, 0.0)
-        x = _solve_pcg(fine.laplacian, cfg.final_beta, w, rhs, rhs, tol=1e-8)
-        state.positions = _unfold_step(fine.faces, old, old + x)
-        record(it, "final", cfg.final_beta, corr.mean_distance, corr.kept_fraction, t_it)
-    placed = apply_transform(state.transform, base_f)
-    state.positions = _repair_folds(fine, placed, state.positions)
-
-    verts = state.positions
-    verts.flags.writeable = False
-    placed.flags.writeable = False
-    total = state.transform @ warp_affine @ t0
-    reg = Registration(
-        verts,
-        template.mesh.faces,
-        _rigid_part(total, template.mesh.vertices),
-        tuple(log),
-        converged,
-        scores,
-        chosen,
-        time.perf_counter() - t_start,
-        affine=total,
-        placed=placed,
-    )
+    reg = run(t0, chosen)
     if cfg.coverage_check and alternative is not None:
         uncovered = _uncovered_fraction(reg, tgt, UNCOVERED_EDGES * fine.edge_length)
         if uncovered > UNCOVERED_MAX:
@@ -1733,12 +1722,39 @@ def register(
             # stalk, when the reference came out upside down): try the best
             # candidate turned well away from this one and keep the one that
             # covers more (see ``coverage_check``)
-            alt = register(template, tgt, replace(cfg, orientation_rank=alternative, coverage_check=False),
-                           reference_up=reference_up, target_up=target_up, callback=callback)
+            k = int(order[alternative])
+            alt = run(_refined_start(template, tgt, transforms[k], cfg), k)
             if _uncovered_fraction(alt, tgt, UNCOVERED_EDGES * fine.edge_length) < uncovered:
                 reg = alt
             reg = replace(reg, seconds=time.perf_counter() - t_start)
     return reg
+
+
+def _refined_start(template: Template, target: TargetSurface, candidate: np.ndarray,
+                   cfg: RegistrationConfig) -> np.ndarray:
+    """The rigid placement a search candidate starts the registration from.
+
+    The rotation of the candidate's affine map only (the search's affine
+    part has served to judge the candidates; the warp fits size and shape),
+    refined by :func:`_refine_rigid` if the refinement scores better.
+    """
+    coarse = template.level("coarse")
+    t0 = _rigid_part(candidate, coarse.vertices)
+    refined = _refine_rigid(coarse, t0, target, cfg)
+    if not np.array_equal(refined, t0):
+        # the refinement is judged as the candidates were. Measured
+        # (benchmarks/registration.py, 4 targets x 2 poses x 5
+        # classes, and a 30-apple build): the stiff search leaves
+        # apples tilted 15-22 degrees, which the refinement undoes
+        # (coarse score 0.62 -> 0.24); but a rigid fit of a bent
+        # zucchini or banana tilts the reference 3-15 degrees, and
+        # it twisted three right apple orientations 8-26 degrees;
+        # the score said so each time (it missed one pepper's
+        # 2-degree twist)
+        judged, _ = _search_orientation(template, target, np.stack([t0, refined]), cfg, level="coarse")
+        if judged[1] < judged[0]:
+            t0 = refined
+    return t0
 
 
 def _alternative_rank(order: np.ndarray, chosen: int, transforms: np.ndarray, points: np.ndarray) -> int | None:
