@@ -420,9 +420,10 @@ def test_orientation_search_is_not_fooled_by_width_and_depth():
 
 def test_orientation_search_is_not_fooled_by_a_taper():
     # This pepper's top is 12 % wider than its middle and its bottom 12 %
-    # narrower; the reference's top is 7 % narrower and its bottom wider. A search whose global steps are only affine fits the body
-    # better upside down than right side up, and the stalk and calyx do not
-    # make up the difference (measured at the paper's 40,000 vertices:
+    # narrower; the reference's top is 7 % narrower and its bottom wider. A
+    # search whose global steps are only affine fits the body better upside
+    # down than right side up, and the stalk and calyx do not make up the
+    # difference (measured at the paper's 40,000 vertices:
     # coarse scores 0.368 upside down, 0.474 right); with the taper in the
     # global step the body fits either way and the right end wins.
     ref, tgt, template = _synthetic_pair("pepper", 1000, 1007, 10000)

@@ -324,11 +324,10 @@ class RegistrationConfig:
         ``benchmarks/registration.py --n 21`` (20 targets x 2 poses per
         class): without it 4 of 20 peppers came out upside down in both
         poses (their tops 9-13 % wider than their middle, the reference's
-        7 % narrower; dense
-        error 15.0 / 15.4 mm upright / random), with it one in the random
-        pose (a pepper wider than tall whose two ends scored within 0.1 %;
-        ``coverage_check`` catches it); on zucchini it turned one end over
-        end.
+        7 % narrower; dense error 15.0 / 15.4 mm upright / random), with it
+        one in the random pose (a pepper wider than tall whose two ends
+        scored within 0.1 %; ``coverage_check`` catches it); on zucchini it
+        turned one end over end.
     coverage_check : bool, default: True
         After the registration, the fraction of the scan's vertices (20,000
         of them, evenly spread) farther than ``UNCOVERED_EDGES`` (2) edge
@@ -917,9 +916,8 @@ def _taper_step(positions: np.ndarray, found: np.ndarray, points: np.ndarray, ax
     """
     c = positions.mean(axis=0)
     x = positions - c
-    h = x @ axis
-    h = h / np.sqrt((h**2).mean())
-    g = h[:, None] * (x - np.outer(x @ axis, axis))
+    height = x @ axis
+    g = (height / np.sqrt((height**2).mean()))[:, None] * (x - np.outer(height, axis))
     gf = g[found]
     den = float((gf * gf).sum())
     if den <= 0.0:
