@@ -1516,6 +1516,8 @@ def register(
         keep it (twists only). Give both or neither.
     callback : callable, optional
         Called with each :class:`IterationRecord` as it is logged (progress).
+        When ``coverage_check`` registers again, the second registration's
+        records follow the first's (its ``iteration`` starts from 0 again).
 
     Returns
     -------
