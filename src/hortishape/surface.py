@@ -28,6 +28,7 @@ __all__ = [
     "barycentric_interpolate",
     "check_closed_surface",
     "closest_points",
+    "component_labels",
     "face_areas",
     "face_normals",
     "mean_edge_length",
@@ -150,6 +151,39 @@ def signed_volume(vertices, faces) -> float:
 # ----------------------------------------------------------------------------
 
 
+def component_labels(faces, n_vertices: int) -> tuple[int, np.ndarray]:
+    """Connected components of a triangle mesh's edge graph.
+
+    Parameters
+    ----------
+    faces : (m, 3) array_like of int
+    n_vertices : int
+        Vertices of the mesh (a vertex used by no face is a component of its own).
+
+    Returns
+    -------
+    n_components : int
+    labels : (n_vertices,) int ndarray
+        The component of every vertex.
+
+    Examples
+    --------
+    >>> two = [[0, 1, 2], [3, 4, 5]]
+    >>> n, labels = component_labels(two, 6)
+    >>> n, labels.tolist()
+    (2, [0, 0, 0, 1, 1, 1])
+    """
+    f = np.asarray(faces)
+    n = int(n_vertices)
+    index = np.int32 if n < 2**31 - 1 else np.int64
+    graph = sp.csr_matrix(
+        (np.ones(f.size, dtype=np.int8), (f.astype(index).ravel(), f[:, [1, 2, 0]].astype(index).ravel())),
+        shape=(n, n),
+    )
+    n_comp, labels = connected_components(graph, directed=False)
+    return int(n_comp), labels
+
+
 def check_closed_surface(mesh: Mesh, *, name: str = "mesh", allow_degenerate: bool = False) -> float:
     """Check that ``mesh`` is one closed, consistently oriented triangle surface.
 
@@ -222,13 +256,7 @@ def check_closed_surface(mesh: Mesh, *, name: str = "mesh", allow_degenerate: bo
     used[f.ravel()] = True
     if not used.all():
         raise MeshError(f"{name}: {int((~used).sum())} vertices are not used by any face")
-    index = np.int32 if n < 2**31 - 1 else np.int64
-    graph = sp.csr_matrix(
-        (np.ones(f.size, dtype=np.int8), (f.astype(index).ravel(), f[:, [1, 2, 0]].astype(index).ravel())),
-        shape=(n, n),
-    )
-    n_comp, labels = connected_components(graph, directed=False)
-    del graph
+    n_comp, labels = component_labels(f, n)
     if n_comp > 1:
         sizes = np.bincount(labels)
         raise MeshError(

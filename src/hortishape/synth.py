@@ -711,6 +711,47 @@ def _band_volume(f, origin: np.ndarray, shape: tuple[int, int, int], h: float, f
     return grid
 
 
+#: The fewest vertices :func:`make_instance` makes a scan of.
+MIN_VERTICES = 1000
+
+#: A thin part (a stalk at a coarse voxel size) can fall apart into pieces
+#: in marching cubes: the grid is made finer by this factor, up to
+#: ``REFINE_STEPS`` times, until the surface is one piece; if it never is,
+#: the largest piece is kept.
+REFINE_FACTOR = 0.75
+REFINE_STEPS = 4
+
+
+def _one_surface(field_at, points, h: float, *, full: bool):
+    """Marching cubes of ``field_at`` around ``points``: one closed component, always.
+
+    Returns the grid, its origin and voxel size, and the surface's vertices
+    (scanner mm) and faces.
+    """
+    from skimage.measure import marching_cubes
+
+    from .surface import component_labels
+
+    for step in range(REFINE_STEPS + 1):
+        lo = points.min(axis=0) - 4 * h - 3.0
+        hi = points.max(axis=0) + 4 * h + 3.0
+        shape = tuple(int(4 * math.ceil((hi[i] - lo[i]) / h / 4)) + 1 for i in range(3))
+        grid = _band_volume(field_at, lo, shape, h, full=full)
+        verts, faces, _, _ = marching_cubes(grid, 0.0, spacing=(h, h, h), allow_degenerate=True)
+        faces = faces.astype(np.int64)
+        n_comp, labels = component_labels(faces, len(verts))
+        if n_comp == 1:
+            break
+        if step < REFINE_STEPS:
+            h *= REFINE_FACTOR
+    if n_comp > 1:
+        keep = labels == np.argmax(np.bincount(labels))
+        new_index = np.cumsum(keep) - 1
+        faces = new_index[faces[keep[faces[:, 0]]]]
+        verts = verts[keep]
+    return grid, lo, h, verts + lo, faces
+
+
 def make_instance(
     product: str,
     *,
@@ -736,7 +777,10 @@ def make_instance(
         along their normals. Ground truth is that of the noise-free surface.
     n_vertices : int, optional
         About how many vertices the scan should have (the voxel size is chosen
-        for it). Default: drawn between 70,000 and 130,000.
+        for it), at least ``MIN_VERTICES``. Default: drawn between 70,000 and
+        130,000. The surface is always one closed piece: where a thin stalk
+        would come apart at that voxel size, the grid is made finer, so a
+        small count can come out larger (up to about 6 times at 1,000).
     volume : bool, default: False
         Also return a CT-like intensity volume (``instance.volume``).
     name : str, optional
@@ -756,6 +800,8 @@ def make_instance(
         raise HortishapeError(f"unknown product {product!r}: choose from {', '.join(PRODUCTS)}")
     if noise < 0 or not math.isfinite(noise):
         raise HortishapeError(f"noise must be a non-negative number of millimetres, got {noise}")
+    if n_vertices is not None and not n_vertices >= MIN_VERTICES:
+        raise HortishapeError(f"n_vertices must be at least {MIN_VERTICES:,}, got {n_vertices}")
     spec = PRODUCTS[product]
     rng = as_generator(random_state)
     canon = spec.canonical(rng)
@@ -789,19 +835,11 @@ def make_instance(
     # tip of a thin stalk, so the landmarks and a few millimetres are added.
     lm_canon = {k: _surface_point_on_ray(canon, o, d) for k, (o, d) in canon.landmark_rays.items()}
     s_verts = deform.forward(np.vstack([c_verts, *lm_canon.values()]))
-    lo = s_verts.min(axis=0) - 4 * h - 3.0
-    hi = s_verts.max(axis=0) + 4 * h + 3.0
-    shape = tuple(int(4 * math.ceil((hi[i] - lo[i]) / h / 4)) + 1 for i in range(3))
 
     def field_at(x):
         return canon(deform.inverse(x))
 
-    grid = _band_volume(field_at, lo, shape, h, full=volume)
-    from skimage.measure import marching_cubes
-
-    verts, faces, _, _ = marching_cubes(grid, 0.0, spacing=(h, h, h), allow_degenerate=True)
-    verts = verts + lo
-    faces = faces.astype(np.int64)
+    grid, lo, h, verts, faces = _one_surface(field_at, s_verts, h, full=volume)
     if signed_volume(verts, faces) < 0:  # outward normals
         faces = faces[:, ::-1].copy()
 
