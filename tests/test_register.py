@@ -402,11 +402,12 @@ def test_distance_floor_lets_an_overshooting_stalk_tip_land():
 
 def test_orientation_search_is_not_fooled_by_width_and_depth():
     # Width and depth vary independently of a fruit's anatomy. A rigid search
-    # and refinement turn the reference to lay its wider side along the
-    # scan's: with this 10,000-vertex reference, this pear pair ends 77
-    # degrees off its true pose that way, and 3 degrees off when the
-    # search's global steps are affine (measured; with 5,000, 20,000 or
-    # 30,000 vertices both end 3 degrees off).
+    # and refinement can turn the reference to lay its wider side along the
+    # scan's: with this 10,000-vertex reference, this pear pair ended 77
+    # degrees off its true pose that way on one machine and 2.5 on another
+    # (a near tie decided by rounding), and 3 degrees off when the search's
+    # global steps are affine. Only the affine search's answer is asserted:
+    # how the rigid one fails is not a property to test.
     ref, tgt, template = _synthetic_pair("pear", 1000, 1004, 10000)
 
     def error(search_affine):
@@ -415,7 +416,6 @@ def test_orientation_search_is_not_fooled_by_width_and_depth():
 
     assert RegistrationConfig().search_affine
     assert error(True) < 10.0
-    assert error(False) > 45.0
 
 
 def test_orientation_search_is_not_fooled_by_a_taper():
@@ -435,8 +435,10 @@ def test_orientation_search_is_not_fooled_by_a_taper():
 
     assert RegistrationConfig().search_taper == "auto"
     assert error("auto") < 10.0
-    assert error(False) > 135.0
-    # the coverage check catches the flip: the scan's stalk is left uncovered
+    # Without the taper this pair flipped (more than 135 degrees), but a
+    # near tie can go either way on another machine, so that is not asserted;
+    # whichever way the search goes, the coverage check ends right side up
+    # (an upside-down result leaves the scan's stalk uncovered).
     assert error(False, coverage_check=True) < 10.0
 
 

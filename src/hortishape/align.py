@@ -293,8 +293,13 @@ def candidate_alignments(
     if source_up is None:
         qs = _signed_permutations()
         # axis-order mismatch of the variances: 0 for the diagonal sign choices
-        cost = [np.abs(q.T @ np.diag(pt.variances) @ q - np.diag(ps.variances)).sum() for q in qs]
-        first = np.argsort(cost, kind="stable")
+        cost = np.array([np.abs(q.T @ np.diag(pt.variances) @ q - np.diag(ps.variances)).sum() for q in qs])
+        # Costs equal in exact arithmetic (the two 3-cycles) differ in their
+        # last bits by summation order, which would make their order depend on
+        # the machine: ties are decided at a precision far above rounding,
+        # then by the fixed order of the signed permutations.
+        scale = float(pt.variances.sum() + ps.variances.sum()) or 1.0
+        first = np.argsort(np.round(cost / scale, 9), kind="stable")
         for i in first:
             rots.append(pt.axes @ qs[i] @ ps.axes.T)
     else:
