@@ -41,7 +41,8 @@ def test_builds_from_the_good_scans_and_reports_the_bad_one(built, scans):
     assert summary["skipped"][0]["path"].endswith("apple_004.ply")
     assert len(summary["second_pass"]) == 4
     assert summary["model"]["n_modes"] == 3  # N - 1 modes
-    assert summary["units"] == "mm"
+    assert summary["units"]["unit"] == "mm" and summary["units"]["scale"] == 1.0
+    assert all(60 < e < 120 for e in summary["units"]["extent_mm"].values())  # apples, mm
 
 
 def test_writes_corresponded_and_aligned_surfaces(built, scans):

@@ -94,3 +94,52 @@ def test_register_command(tmp_path, capsys):
     assert (out / "pear_001.ply").is_file() and (out / "pear_001.json").is_file()
     # only bad targets: non-zero exit
     assert main(["register", str(scans / "pear_000.ply"), str(broken), "--out", str(out)]) == 1
+
+
+def _subparsers():
+    parser = build_parser()
+    return parser._subparsers._group_actions[0].choices
+
+
+def test_help_says_each_default_once_and_none_on_required_options():
+    for name, sub in _subparsers().items():
+        for action in sub._actions:
+            if not action.option_strings or action.help is None:
+                continue
+            text = sub._get_formatter()._get_help_string(action)
+            assert text.lower().count("default") <= 1, (name, action.option_strings, text)
+            assert "(default: None)" not in text and "(default: False)" not in text, (name, text)
+            if action.required:
+                assert "default" not in text.lower(), (name, action.option_strings, text)
+    build = _subparsers()["build"].format_help()
+    assert "(default: 50 1)" in build and "--out OUT" in build
+
+
+def test_every_option_the_readme_names_exists():
+    import re
+    from pathlib import Path
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    commands = _subparsers()
+    options = {name: {s for a in sub._actions for s in a.option_strings} for name, sub in commands.items()}
+    everywhere = set().union(*options.values())
+    checked = 0
+    for line in readme.splitlines():
+        # a command line: its options must be its command's
+        m = re.match(r"^\s*(?:\.venv/bin/)?hortishape (\w+)(.*)", line)
+        if m and m.group(1) in commands:
+            for opt in re.findall(r"(?<![\w-])(--[a-z][a-z-]*)", m.group(2).split("#")[0]):
+                assert opt in options[m.group(1)], (line, opt)
+                checked += 1
+    for span in re.findall(r"`([^`]+)`", readme):
+        if span.startswith(("python ", "pip ", ".venv/bin/pip", "python3 ")):
+            continue  # the benchmark scripts' and pip's own options
+        words = span.split()
+        if words and words[0] == "hortishape" and len(words) > 1 and words[1] in commands:
+            names = options[words[1]]
+        else:
+            names = everywhere
+        for opt in re.findall(r"(?<![\w-])(--[a-z][a-z-]*)", span):
+            assert opt in names, (span, opt)
+            checked += 1
+    assert checked > 20

@@ -18,7 +18,7 @@ from hortishape.extract import (
     taubin_smooth,
     volume_stem,
 )
-from hortishape.io import Volume, read_mesh, write_mesh, write_volume
+from hortishape.io import Volume, read_mesh, read_volume, write_mesh, write_volume
 from hortishape.mesh import Mesh
 from hortishape.surface import check_closed_surface, closest_points, face_areas, signed_volume
 
@@ -339,7 +339,8 @@ def test_extract_file_writes_the_surface_and_resumes(volumes, tmp_path):
     mesh = read_mesh(tmp_path / "ball_0.ply")
     assert mesh.n_vertices == first.n_vertices
     log = json.loads((tmp_path / "ball_0.json").read_text())
-    assert log["units"] == "mm" and log["volume_mm3"] == pytest.approx(first.volume_mm3)
+    assert log["units"]["unit"] == "mm" and log["units"]["spacing_mm"] == [0.8, 0.8, 0.8]
+    assert log["volume_mm3"] == pytest.approx(first.volume_mm3)
     stamp = (tmp_path / "ball_0.ply").stat().st_mtime_ns
     again = extract_file(volumes / "ball_0.mha", tmp_path, picture=False)
     assert again.resumed and (tmp_path / "ball_0.ply").stat().st_mtime_ns == stamp
@@ -404,3 +405,25 @@ def test_build_from_a_folder_of_volumes(volumes, tmp_path):
     assert result.names == ("ball_0", "ball_1", "ball_2")
     assert [p.endswith("not_a_scan.txt.ply") for p, _ in result.skipped] == [True]  # an open triangle
     assert result.model_path.is_file()
+
+
+def test_spacing_sets_the_voxel_size_and_a_wrong_one_is_refused(volumes, tmp_path, capsys):
+    base = extract_file(volumes / "ball_1.mha", tmp_path / "a", picture=False)
+    double = extract_file(volumes / "ball_1.mha", tmp_path / "b", picture=False, spacing=(1.6, 1.6, 1.6))
+    assert base.ok and double.ok
+    assert double.volume_mm3 == pytest.approx(8 * base.volume_mm3, rel=1e-3)
+    log = json.loads((tmp_path / "b" / "ball_1.json").read_text())
+    assert log["units"]["spacing_mm"] == [1.6, 1.6, 1.6] and log["options"]["spacing"] == [1.6, 1.6, 1.6]
+    # a voxel size given in metres: the product is 0.03 mm across, and the fix is named
+    metres = extract_file(volumes / "ball_1.mha", tmp_path / "c", picture=False, spacing=(0.0008,) * 3)
+    assert not metres.ok and metres.error.startswith(str(volumes / "ball_1.mha"))
+    assert "not a fruit's size" in metres.error and "use --spacing 0.8 0.8 0.8" in metres.error
+    assert not (tmp_path / "c" / "ball_1.ply").exists()
+    # the command line: a TIFF stack, which stores no voxel size
+    tif = write_volume(tmp_path / "ball.tif", read_volume(volumes / "ball_1.mha"))
+    assert main(["extract", str(tif), "--out", str(tmp_path / "t"), "--no-picture", "--spacing", "0.8", "0.8",
+                 "0.8"]) == 0
+    out = capsys.readouterr().out
+    assert "extracted 1 of 1" in out
+    tif_log = json.loads((tmp_path / "t" / "ball.json").read_text())
+    assert tif_log["volume_mm3"] == pytest.approx(base.volume_mm3, rel=1e-3)

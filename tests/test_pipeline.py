@@ -37,7 +37,8 @@ def test_writes_one_registered_mesh_and_log_per_scan(scans, template, tmp_path):
         np.testing.assert_array_equal(mesh.faces, template.mesh.faces)
         assert mesh.n_vertices == template.mesh.n_vertices
         log = json.loads((tmp_path / f"{r.name}.json").read_text())
-        assert log["units"] == "mm" and len(log["iterations"]) == r.iterations
+        assert log["units"]["unit"] == "mm" and 60 < log["units"]["extent_mm"] < 120
+        assert len(log["iterations"]) == r.iterations
         assert {"beta", "mean_distance", "kept_fraction", "seconds"} <= set(log["iterations"][0])
         # the registered surface lies on the scan, in the scan's own coordinates
         assert r.geometric_error < 0.5

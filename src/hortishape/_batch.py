@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import os
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from typing import Callable, Iterable, Sequence
+from typing import Callable, Iterable, Iterator, Sequence
 
 from .errors import HortishapeError
 
@@ -32,7 +32,8 @@ def run_jobs(
 ) -> list:
     """``[fn(job) for job in jobs]``, over ``n_jobs`` processes (default: all cores).
 
-    ``progress`` wraps the iterator of finished jobs (e.g. tqdm); ``stop`` is
+    ``progress`` wraps the iterator of finished jobs' results, in the order
+    they finish (e.g. tqdm, or a reporter that describes each); ``stop`` is
     called with each result as it arrives and may raise to end the batch (jobs
     not started are cancelled); ``initializer(*initargs)`` prepares each worker
     process, or this process when the jobs run here (one job or ``n_jobs=1``).
@@ -42,22 +43,25 @@ def run_jobs(
     wrap = progress or (lambda it: it)
     n_jobs = max(1, min(n_jobs or os.cpu_count() or 1, len(jobs) or 1))
 
-    def handle(i: int, result) -> None:
-        results[i] = result
-        if stop is not None:
-            stop(result)
+    def finished(pairs: Iterable) -> Iterator:
+        """Each result as it arrives, stored in order and checked by ``stop``."""
+        for i, result in pairs:
+            results[i] = result
+            if stop is not None:
+                stop(result)
+            yield result
 
     if n_jobs == 1:
         if initializer is not None:
             initializer(*initargs)
-        for i, job in enumerate(wrap(jobs)):
-            handle(i, fn(job))
+        for _ in wrap(finished((i, fn(job)) for i, job in enumerate(jobs))):
+            pass
         return results
     with ProcessPoolExecutor(max_workers=n_jobs, initializer=initializer, initargs=initargs) as pool:
         futures = {pool.submit(fn, job): i for i, job in enumerate(jobs)}
         try:
-            for fut in wrap(as_completed(futures)):
-                handle(futures[fut], fut.result())
+            for _ in wrap(finished((futures[f], f.result()) for f in as_completed(futures))):
+                pass
         except BaseException:
             for f in futures:
                 f.cancel()

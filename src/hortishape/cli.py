@@ -21,19 +21,86 @@ EPILOG = (
 )
 
 
-class _Formatter(argparse.ArgumentDefaultsHelpFormatter, argparse.RawDescriptionHelpFormatter):
-    pass
+class _Formatter(argparse.RawDescriptionHelpFormatter):
+    """Descriptions as written; each option's default said once, where there is one to say."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        default = action.default
+        if (not action.option_strings or action.required or "default" in text.lower()
+                or default is None or default is False or default is argparse.SUPPRESS):
+            return text
+        values = default if isinstance(default, (list, tuple)) else [default]
+        shown = " ".join(f"{d:g}" if isinstance(d, float) else str(d) for d in values)
+        return f"{text} (default: {shown.replace('%', '%%')})"
+
+
+def _describe(item) -> str:
+    """What a plain progress line says of a finished item of a batch."""
+    if isinstance(item, tuple) and item and isinstance(item[0], str):  # (name, ...) of a synthetic scan
+        return f" {item[0]}"
+    name = getattr(item, "name", None)
+    if name is None:
+        return ""
+    if not getattr(item, "ok", True):
+        return f" {name}: skipped: {item.error}"
+    if hasattr(item, "geometric_error"):  # a registration
+        return (f" {name}: {'resumed' if item.resumed else 'registered'} in {item.seconds:.1f} s, "
+                f"{item.iterations} iterations, d_t {item.mean_distance:.3f} mm, geometric error "
+                f"{item.geometric_error:.4f} mm" + ("" if item.converged else ", not converged"))
+    if hasattr(item, "volume_mm3"):  # an extraction
+        return (f" {name}: {'resumed' if item.resumed else 'extracted'} in {item.seconds:.1f} s, "
+                f"{item.n_vertices:,} vertices, {item.volume_mm3 / 1000:.1f} mL")
+    return f" {name}"
 
 
 def _progress(total: int, desc: str, unit: str = "instance") -> Callable:
-    """A tqdm wrapper for an iterator of ``total`` items, on stderr."""
+    """A progress wrapper for an iterator of ``total`` items.
+
+    On a terminal, a bar on stderr. Wherever the output goes to a file or a
+    pipe (a log, CI), plain lines on stdout too: one when the stage starts,
+    one per finished item (with its seconds and fit) and one at its end, so
+    a log shows how far a long command got and what went wrong where.
+    """
     from tqdm.auto import tqdm
 
+    bar = sys.stderr.isatty()
+    plain = not (bar and sys.stdout.isatty())
+
+    def lines(iterable):
+        start = time.perf_counter()
+        print(f"{desc}: {total} {unit}{'s' if total != 1 else ''}", flush=True)
+        k = 0
+        for item in iterable:
+            yield item
+            k += 1
+            print(f"{desc} {k}/{total}{_describe(item)}", flush=True)
+        print(f"{desc}: {k} done in {time.perf_counter() - start:.1f} s", flush=True)
+
     def wrap(iterable):
+        if plain:
+            iterable = lines(iterable)
         return tqdm(iterable, total=total, desc=desc, unit=unit, file=sys.stderr,
-                    disable=None, dynamic_ncols=True)
+                    disable=not bar, dynamic_ncols=True)
 
     return wrap
+
+
+def _add_scale(p) -> None:
+    p.add_argument("--scale", type=_positive_float, default=1.0, metavar="FACTOR",
+                   help="multiply the scans' coordinates by FACTOR to give millimetres (1000 for scans in "
+                        "metres); the files are not changed. Every product's size is checked: a fruit is "
+                        "3-1500 mm across")
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (value > 0 and value < float("inf")):
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text}")
+    return value
 
 
 def _positive_int(text: str) -> int:
@@ -157,6 +224,9 @@ def _add_extract(sub) -> None:
                    help="Taubin smoothing iterations (0: none); does not shrink the shape")
     p.add_argument("--keep-support", action="store_true",
                    help="do not look for a support or scanner bed touching the product")
+    p.add_argument("--spacing", type=_positive_float, nargs=3, default=None, metavar=("SX", "SY", "SZ"),
+                   help="voxel size along x, y, z in mm, in place of what the file says; needed for TIFF, "
+                        "which stores none (default: the file's; 1 mm with a warning for TIFF)")
     p.add_argument("--no-picture", action="store_true", help="skip the pictures")
     p.add_argument("--jobs", type=_positive_int, default=1, metavar="J",
                    help="parallel processes; each holds one volume and about 1.5 times its size")
@@ -173,7 +243,7 @@ def _run_extract(args) -> int:
     results = extract_files(
         args.volumes, args.out, level=args.level, smoothing=args.smoothing,
         target_vertices=args.target_vertices, remove_support=not args.keep_support,
-        picture=not args.no_picture, n_jobs=args.jobs, strict=args.strict,
+        picture=not args.no_picture, n_jobs=args.jobs, strict=args.strict, spacing=args.spacing,
         progress=_progress(len(args.volumes), "extract", "volume"),
     )
     print(f"{'volume':<24}{'vertices':>10}{'mL':>9}{'level':>9}{'seconds':>9}  note")
@@ -268,6 +338,7 @@ def _add_register(sub) -> None:
     p.add_argument("--jobs", type=_positive_int, default=None, metavar="J",
                    help="parallel processes (default: all cores)")
     p.add_argument("--strict", action="store_true", help="stop at the first target that fails")
+    _add_scale(p)
     _add_registration_options(p)
     p.set_defaults(run=_run_register)
 
@@ -289,18 +360,19 @@ def _print_results(results) -> int:
 
 
 def _run_register(args) -> int:
-    from .io import read_mesh
     from .pipeline import register_files
     from .register import prepare_reference
+    from .units import read_scan
 
     config = _registration_config(args)
     start = time.perf_counter()
-    reference = read_mesh(args.reference)
+    reference = read_scan(args.reference, scale=args.scale).mesh
     print(f"preparing the reference {args.reference} ({reference.n_vertices:,} vertices"
           + ("" if args.no_resample else f" -> {args.points:,}") + ")", file=sys.stderr)
     template = prepare_reference(reference, None if args.no_resample else args.points)
     results = register_files(template, args.targets, args.out, config=config, n_jobs=args.jobs,
-                             strict=args.strict, progress=_progress(len(args.targets), "register", "scan"))
+                             strict=args.strict, progress=_progress(len(args.targets), "register", "scan"),
+                             scale=args.scale)
     failed = _print_results(results)
     print(f"registered {len(results) - failed} of {len(results)} scans to {args.out} "
           f"in {time.perf_counter() - start:.1f} s")
@@ -364,13 +436,16 @@ def _add_build(sub) -> None:
     p.add_argument("--jobs", type=_positive_int, default=None, metavar="J",
                    help="parallel registrations (default: all cores)")
     p.add_argument("--strict", action="store_true", help="stop at the first bad scan instead of skipping it")
+    _add_scale(p)
     _add_registration_options(p)
     p.set_defaults(run=_run_build)
 
 
 def _print_build(result) -> None:
     print(f"reference: {result.reference}")
-    print("second pass (the model's correspondences):")
+    print("first pass (the reference registered to every scan):")
+    _print_results(result.first_pass)
+    print("second pass (the first pass's mean registered to every scan: the model's correspondences):")
     _print_results(result.second_pass)
     for path, reason in result.skipped:
         print(f"skipped {path}: {reason}")
@@ -392,7 +467,7 @@ def _run_build(args) -> int:
     result = build_model(
         args.input_dir, args.out, reference=args.reference, n_points=args.points, n_modes=args.modes,
         n_jobs=args.jobs, strict=args.strict, config=_registration_config(args), scaling=args.scaling,
-        progress=_stage_progress,
+        progress=_stage_progress, scale=args.scale,
     )
     _print_build(result)
     return 0
@@ -472,6 +547,7 @@ def _add_fit(sub) -> None:
                    help="reconstruction mesh (default: <scan stem>_fit.ply beside the current folder)")
     p.add_argument("--modes", type=_positive_int, default=None, help="modes to fit (default: all)")
     p.add_argument("--json", type=Path, default=None, metavar="FILE", help="also write the figures as JSON")
+    _add_scale(p)
     _add_registration_options(p)
     p.set_defaults(run=_run_fit)
 
@@ -479,12 +555,13 @@ def _add_fit(sub) -> None:
 def _run_fit(args) -> int:
     import json
 
-    from .io import read_mesh, write_mesh
+    from .io import write_mesh
     from .pipeline import fit_scan
+    from .units import read_scan
 
     model = _load_model(args.model)
-    scan = read_mesh(args.scan)
-    fit = fit_scan(model, scan, modes=args.modes, config=_registration_config(args))
+    scan = read_scan(args.scan, scale=args.scale)
+    fit = fit_scan(model, scan.mesh, modes=args.modes, config=_registration_config(args))
     out = args.out or Path(f"{args.scan.stem}_fit.ply")
     write_mesh(out, fit.reconstruction, model.faces_)
     sds = " ".join(f"{b:+.2f}" for b in fit.coefficients[: min(10, len(fit.coefficients))])
@@ -495,7 +572,7 @@ def _run_fit(args) -> int:
     print(f"wrote {out}")
     if args.json:
         args.json.write_text(json.dumps({
-            "scan": str(args.scan), "units": "mm", "coefficients_sd": fit.coefficients.tolist(),
+            "scan": str(args.scan), "units": scan.units.as_log(), "coefficients_sd": fit.coefficients.tolist(),
             "pose": fit.pose.tolist(), "mahalanobis": fit.mahalanobis,
             "residual_mean_mm": fit.residual_mean, "residual_max_mm": fit.residual_max,
             "surface_mean_mm": fit.surface_mean, "surface_max_mm": fit.surface_max,
@@ -637,10 +714,10 @@ def _run_cad(args) -> int:
         coefficients[-1] = args.sd
         label = f"mode {args.mode} {args.sd:+g} SD"
     else:
-        from .io import read_mesh
         from .pipeline import fit_scan
+        from .units import read_scan
 
-        fit = fit_scan(model, read_mesh(args.scan))
+        fit = fit_scan(model, read_scan(args.scan).mesh)
         coefficients, pose = fit.coefficients, fit.pose
         label = f"the fit of {args.scan} (Mahalanobis {fit.mahalanobis:.2f} SD, in the scan's coordinates)"
     try:

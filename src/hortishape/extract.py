@@ -65,6 +65,7 @@ from ._batch import raise_failed, run_jobs
 from .errors import HortishapeError, MeshError, VolumeError
 from .io import Volume, atomic_path, read_volume, volume_formats, write_mesh
 from .mesh import Mesh
+from .units import PLAUSIBLE_EXTENT_MM, SizeCheck, check_size, likely_unit
 
 __all__ = [
     "ExtractResult",
@@ -1126,7 +1127,8 @@ def _settings(options: dict) -> str:
 
 def extract_file(source, out_dir, *, level: float | None = None, smoothing: int = 10,
                  target_vertices: int | None = None, remove_support: bool = True,
-                 support_radius: float = 2.0, picture: bool = True) -> ExtractResult:
+                 support_radius: float = 2.0, picture: bool = True,
+                 spacing: Sequence[float] | None = None) -> ExtractResult:
     """Extract the surface of one volume file into ``out_dir``, unless already done.
 
     Writes ``out_dir/<stem>.ply`` (the surface, mm), ``out_dir/<stem>.json``
@@ -1145,16 +1147,24 @@ def extract_file(source, out_dir, *, level: float | None = None, smoothing: int 
         See :func:`extract_surface`.
     picture : bool, default: True
         Also write the picture.
+    spacing : (3,) sequence of float, optional
+        Voxel size along x, y, z (mm), in place of what the file says (TIFF
+        stores none: 1 mm is assumed with a warning).
 
     Returns
     -------
     ExtractResult
-        Never raises for a bad volume: ``ok`` is False and ``error`` says why.
+        Never raises for a bad volume: ``ok`` is False and ``error`` says why,
+        also when the surface is not a fruit's size
+        (:data:`hortishape.units.PLAUSIBLE_EXTENT_MM`), with the voxel size
+        that would make it one.
     """
     source, out = Path(source), Path(out_dir)
     stem = volume_stem(source)
     options = {"level": level, "smoothing": smoothing, "target_vertices": target_vertices,
                "remove_support": remove_support, "support_radius": support_radius}
+    if spacing is not None:  # absent otherwise, so earlier runs' fingerprints still hold
+        options["spacing"] = [float(x) for x in spacing]
     ply, log_path, png = out / f"{stem}.ply", out / f"{stem}.json", out / f"{stem}.png"
     try:
         if not source.exists():
@@ -1170,9 +1180,10 @@ def extract_file(source, out_dir, *, level: float | None = None, smoothing: int 
                 return _result(stem, source, log, ply, png if png.is_file() else None, resumed=True)
         out.mkdir(parents=True, exist_ok=True)
         start = time.perf_counter()
-        vol = read_volume(source)
+        vol = read_volume(source, spacing=spacing)
         ext = extract_surface(vol, level=level, smoothing=smoothing, target_vertices=target_vertices,
                               remove_support=remove_support, support_radius=support_radius, name=str(source))
+        units = {**_check_extent(ext.mesh.vertices, vol.spacing, source).as_log(), "spacing_mm": vol.spacing.tolist()}
         seconds = time.perf_counter() - start
         write_mesh(ply, ext.mesh)
         if picture:
@@ -1183,7 +1194,7 @@ def extract_file(source, out_dir, *, level: float | None = None, smoothing: int 
             "source_sha256": digest,
             "fingerprint": fingerprint,
             "options": options,
-            "units": "mm",
+            "units": units,
             "seconds": seconds,
             "levels": asdict(ext.levels),
             "bounds_index_xyz": ext.bounds.tolist(),
@@ -1217,6 +1228,23 @@ def extract_file(source, out_dir, *, level: float | None = None, smoothing: int 
         )
 
 
+def _check_extent(vertices: np.ndarray, spacing: np.ndarray, source: Path) -> SizeCheck:
+    """The size check of an extracted surface, whose unit is set by the voxel size."""
+    try:
+        return check_size(vertices, name=str(source))
+    except MeshError:
+        extent = float(np.ptp(vertices, axis=0).max())
+        unit = likely_unit(extent)
+        given = " ".join(f"{x:g}" for x in spacing)
+        fix = ("" if unit is None else
+               f"; if the voxel size is in {unit[0]}, use --spacing {' '.join(f'{x * unit[1]:g}' for x in spacing)}")
+        lo, hi = PLAUSIBLE_EXTENT_MM
+        raise VolumeError(
+            f"{source}: the product is {extent:.3g} mm across with voxels of {given} mm, not a fruit's size "
+            f"({lo:g}-{hi:g} mm){fix}"
+        ) from None
+
+
 def _result(stem: str, source: Path, log: dict, ply: Path, png: Path | None, *, resumed: bool) -> ExtractResult:
     lv = log["levels"]
     return ExtractResult(
@@ -1246,6 +1274,7 @@ def extract_files(
     n_jobs: int | None = 1,
     strict: bool = False,
     progress: Progress | None = None,
+    spacing: Sequence[float] | None = None,
 ) -> list[ExtractResult]:
     """Extract the surface of every volume into ``out_dir`` (see :func:`extract_file`).
 
@@ -1254,7 +1283,7 @@ def extract_files(
     sources : sequence of path
         Volume files or DICOM / TIFF-slice folders.
     out_dir : path
-    level, smoothing, target_vertices, remove_support, support_radius, picture
+    level, smoothing, target_vertices, remove_support, support_radius, picture, spacing
         See :func:`extract_file`.
     n_jobs : int or None, default: 1
         Worker processes; None: all cores. Each holds one volume and about
@@ -1286,6 +1315,7 @@ def extract_files(
         raise HortishapeError(f"several volumes share the name {dup[0]!r}: their outputs would collide")
     out.mkdir(parents=True, exist_ok=True)
     options = {"level": level, "smoothing": smoothing, "target_vertices": target_vertices,
-               "remove_support": remove_support, "support_radius": support_radius, "picture": picture}
+               "remove_support": remove_support, "support_radius": support_radius, "picture": picture,
+               "spacing": spacing}
     jobs = [(str(p), str(out), options) for p in paths]
     return run_jobs(_extract_job, jobs, n_jobs=n_jobs, progress=progress, stop=raise_failed if strict else None)

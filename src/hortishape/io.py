@@ -1796,7 +1796,7 @@ def read_volume(path: PathLike, *, spacing: npt.ArrayLike | None = None) -> Volu
         if spacing is None:
             warnings.warn(
                 f"{p}: TIFF stores no reliable voxel spacing; assuming 1 mm along x, y and z "
-                "(pass spacing= to set it)",
+                "(set it with spacing=, or hortishape extract --spacing SX SY SZ)",
                 UserWarning,
                 stacklevel=2,
             )

@@ -30,6 +30,7 @@ from .errors import ConvergenceWarning, HortishapeError
 from .io import atomic_path, is_mesh_file, mesh_formats, read_mesh, write_mesh
 from .mesh import Mesh
 from .register import Registration, RegistrationConfig, Template, prepare_reference, register
+from .units import PLAUSIBLE_EXTENT_MM, SizeCheck, read_scan
 
 __all__ = ["InstanceResult", "find_meshes", "find_scans", "register_files", "template_fingerprint"]
 
@@ -139,12 +140,14 @@ def find_scans(folder, out_dir, *, n_jobs: int | None = None, strict: bool = Fal
     return sorted(files, key=lambda p: p.name), failed
 
 
-def template_fingerprint(template: Template, config: RegistrationConfig) -> str:
-    """A digest of what decides a registration's result besides the scan."""
+def template_fingerprint(template: Template, config: RegistrationConfig, *, scale: float = 1.0) -> str:
+    """A digest of what decides a registration's result besides the scan's bytes."""
     h = hashlib.sha256()
     h.update(np.ascontiguousarray(template.mesh.vertices).tobytes())
     h.update(np.ascontiguousarray(template.mesh.faces).tobytes())
     h.update(repr(config).encode())
+    if scale != 1.0:  # fingerprints of unscaled batches stay what they were
+        h.update(f"scale={scale!r}".encode())
     return h.hexdigest()
 
 
@@ -160,8 +163,8 @@ def _file_digest(path: Path) -> str:
 _WORKER: dict = {}
 
 
-def _init_worker(template: Template, config: RegistrationConfig, fingerprint: str) -> None:
-    _WORKER.update(template=template, config=config, fingerprint=fingerprint)
+def _init_worker(template: Template, config: RegistrationConfig, fingerprint: str, scale: float = 1.0) -> None:
+    _WORKER.update(template=template, config=config, fingerprint=fingerprint, scale=scale)
     # numpy/BLAS threads would fight the other workers for the cores
     os.environ.setdefault("OMP_NUM_THREADS", "1")
 
@@ -194,14 +197,14 @@ def _done_before(source: Path, out_dir: Path, fingerprint: str, digest: str) -> 
 
 
 def registration_log(reg: Registration, *, source: Path, fingerprint: str, digest: str,
-                     geometric_error: float) -> dict:
+                     geometric_error: float, units: SizeCheck) -> dict:
     """The JSON-able log of one registration (what ``<stem>.json`` holds)."""
     last = reg.log[-1]
     return {
         "source": str(source),
         "source_sha256": digest,
         "fingerprint": fingerprint,
-        "units": "mm",
+        "units": units.as_log(),
         "summary": {
             "seconds": reg.seconds,
             "iterations": len(reg.log),
@@ -235,7 +238,8 @@ def _register_file(job) -> InstanceResult:
         done = _done_before(source, out_dir, fingerprint, digest)
         if done is not None:
             return _result_from_log(done, source, resumed=True)
-        target = read_mesh(source)
+        scan = read_scan(source, scale=_WORKER.get("scale", 1.0))
+        target = scan.mesh
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", ConvergenceWarning)  # reported as converged=False
             reg = register(template, target, config, initial_transform=initial_transform)
@@ -243,7 +247,7 @@ def _register_file(job) -> InstanceResult:
 
         geometric = float(closest_points(target, reg.vertices).distances.mean())
         log = registration_log(reg, source=source, fingerprint=fingerprint, digest=digest,
-                               geometric_error=geometric)
+                               geometric_error=geometric, units=scan.units)
         write_mesh(out_dir / f"{source.stem}.ply", reg.mesh)
         # the log last: its presence with the right fingerprint marks the scan done
         _atomic_text(out_dir / f"{source.stem}.json", json.dumps(_jsonable(log), indent=1))
@@ -275,6 +279,7 @@ def register_files(
     strict: bool = False,
     progress: Progress | None = None,
     initial_transforms: Sequence | None = None,
+    scale: float = 1.0,
 ) -> list[InstanceResult]:
     """Register ``reference`` to every scan file and write the results.
 
@@ -304,6 +309,11 @@ def register_files(
     initial_transforms : sequence of (4, 4) array_like or None, optional
         Per scan, a reference -> scan transform to start from instead of
         searching the orientation (``None`` entries search).
+    scale : float, default: 1.0
+        Multiplies every scan's coordinates on reading, to give mm (1000 for
+        scans in metres); each scan's size is then checked
+        (:func:`hortishape.units.check_size`), and the registered surface is
+        in mm.
 
     Returns
     -------
@@ -325,7 +335,7 @@ def register_files(
         raise HortishapeError(f"several scans share the name {dup[0]!r}: their outputs would collide")
     template = reference if isinstance(reference, Template) else prepare_reference(reference)
     cfg = config if config is not None else RegistrationConfig()
-    fingerprint = template_fingerprint(template, cfg)
+    fingerprint = template_fingerprint(template, cfg, scale=scale)
     starts = list(initial_transforms) if initial_transforms is not None else [None] * len(targets)
     if len(starts) != len(targets):
         raise ValueError(f"{len(starts)} initial transforms for {len(targets)} scans")
@@ -334,7 +344,7 @@ def register_files(
     try:
         results = run_jobs(_register_file, jobs, n_jobs=n_jobs, progress=progress,
                            stop=raise_failed if strict else None,
-                           initializer=_init_worker, initargs=(template, cfg, fingerprint))
+                           initializer=_init_worker, initargs=(template, cfg, fingerprint, scale))
     finally:
         _WORKER.clear()  # when the jobs ran in this process
     return results  # type: ignore[return-value]
@@ -354,14 +364,17 @@ class ScanCheck:
     error: str | None = None
     n_vertices: int = 0
     size: float = float("nan")  # cube root of the enclosed volume, mm
+    extent: float = float("nan")  # largest extent of the bounding box, mm
 
 
-def check_scans(paths: Sequence, *, max_size_ratio: float = 5.0) -> list[ScanCheck]:
+def check_scans(paths: Sequence, *, max_size_ratio: float = 5.0, scale: float = 1.0) -> list[ScanCheck]:
     """Read every scan once and check it is usable for a population model.
 
-    A scan must be one closed surface, and its size (cube root of the enclosed
-    volume) within ``max_size_ratio`` of the population's median: a scan in
-    metres among scans in millimetres is 1000 times too small.
+    A scan must be one closed surface of a fruit's size in mm after ``scale``
+    (:func:`hortishape.units.check_size`: a population wholly in metres is
+    refused too), and its size (cube root of the enclosed volume) within
+    ``max_size_ratio`` of the population's median: a scan in metres among
+    scans in millimetres is 1000 times too small.
 
     Returns
     -------
@@ -374,10 +387,11 @@ def check_scans(paths: Sequence, *, max_size_ratio: float = 5.0) -> list[ScanChe
     for p in paths:
         p = Path(p)
         try:
-            mesh = read_mesh(p)
+            mesh = read_scan(p, scale=scale).mesh
             check_closed_surface(mesh, name=str(p), allow_degenerate=True)
             size = abs(signed_volume(mesh.vertices, mesh.faces)) ** (1.0 / 3.0)
-            checks.append(ScanCheck(str(p), True, n_vertices=mesh.n_vertices, size=size))
+            checks.append(ScanCheck(str(p), True, n_vertices=mesh.n_vertices, size=size,
+                                    extent=float(np.ptp(mesh.vertices, axis=0).max())))
         except HortishapeError as exc:
             checks.append(ScanCheck(str(p), False, error=str(exc)))
     sizes = [c.size for c in checks if c.ok]
@@ -388,7 +402,7 @@ def check_scans(paths: Sequence, *, max_size_ratio: float = 5.0) -> list[ScanChe
                 ratio = c.size / median
                 hint = " (in metres?)" if ratio < 0.01 else " (in micrometres?)" if ratio > 100 else ""
                 checks[i] = ScanCheck(
-                    c.path, False, n_vertices=c.n_vertices, size=c.size,
+                    c.path, False, n_vertices=c.n_vertices, size=c.size, extent=c.extent,
                     error=f"{c.path}: its size is {ratio:.3g} times the population's median{hint}; "
                           "all scans must be in millimetres",
                 )
@@ -459,6 +473,7 @@ def build_model(
     config: RegistrationConfig | None = None,
     scaling: bool = False,
     progress: Callable[[int, str], Progress] | None = None,
+    scale: float = 1.0,
 ) -> BuildResult:
     """Build a statistical shape model from a folder of scans (paper section 2.2.3).
 
@@ -509,6 +524,9 @@ def build_model(
     progress : callable, optional
         ``progress(total, description)`` returns a wrapper for an iterator
         (e.g. a tqdm factory).
+    scale : float, default: 1.0
+        Multiplies every scan's coordinates on reading, to give mm (1000 for
+        scans in metres); the scans' files are not changed.
 
     Returns
     -------
@@ -525,7 +543,7 @@ def build_model(
     start = time.perf_counter()
     out = Path(out_dir)
     files, failed = find_scans(input_dir, out, n_jobs=n_jobs, strict=strict, progress=progress)
-    checks = check_scans(files)
+    checks = check_scans(files, scale=scale)
     skipped = failed + [(c.path, c.error) for c in checks if not c.ok]
     if strict and skipped:
         raise HortishapeError(skipped[0][1])
@@ -540,18 +558,19 @@ def build_model(
         ref_path = Path(choose_reference(checks))
     else:
         ref_path = Path(reference)
-    ref_mesh = read_mesh(ref_path)
+    ref_scan = read_scan(ref_path, scale=scale)
     cfg = config if config is not None else RegistrationConfig()
 
     def run_pass(template: Template, folder: Path, desc: str, paths: list[Path], starts=None) -> list[InstanceResult]:
         results = register_files(template, paths, folder, config=cfg, n_jobs=n_jobs, strict=strict,
-                                 progress=_stage(progress, len(paths), desc), initial_transforms=starts)
+                                 progress=_stage(progress, len(paths), desc), initial_transforms=starts,
+                                 scale=scale)
         for r in results:
             if not r.ok:
                 skipped.append((r.source, r.error))
         return results
 
-    template = prepare_reference(ref_mesh, n_points)
+    template = prepare_reference(ref_scan.mesh, n_points)
     first = run_pass(template, out / "work" / "first-pass", "registration 1/2", usable)
     good = [Path(r.source) for r in first if r.ok]
     _need_three(good, input_dir)
@@ -559,7 +578,7 @@ def build_model(
     rechecked = _orientation_consensus(
         first_files, out / "work", lambda paths, folder, c: register_files(
             template, paths, folder, config=c, n_jobs=n_jobs,
-            progress=_stage(progress, len(paths), "orientation check")),
+            progress=_stage(progress, len(paths), "orientation check"), scale=scale),
         cfg, scaling=scaling,
     )
 
@@ -589,7 +608,8 @@ def build_model(
 
     seconds = time.perf_counter() - start
     summary = {
-        "units": "mm",
+        "units": {"unit": "mm", "scale": scale, "extent_mm": {c.path: c.extent for c in checks if c.ok},
+                  "plausible_extent_mm": list(PLAUSIBLE_EXTENT_MM)},
         "input_dir": str(input_dir),
         "reference": str(ref_path),
         "n_points": template.mesh.n_vertices,
