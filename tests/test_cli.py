@@ -143,3 +143,14 @@ def test_every_option_the_readme_names_exists():
             assert opt in names, (span, opt)
             checked += 1
     assert checked > 20
+
+
+def test_up_option_reaches_the_configuration_and_its_help_states_the_tolerance():
+    from hortishape.cli import _registration_config
+    from hortishape.register import UP_TOLERANCE
+
+    sub = _subparsers()["register"]
+    assert f"{UP_TOLERANCE:g} degrees" in sub.format_help().replace("\n", " ").replace("  ", " ")
+    args = sub.parse_args(["ref.ply", "a.ply", "--out", "o", "--up", "0", "0", "3"])
+    assert _registration_config(args).up == (0.0, 0.0, 1.0)
+    assert _registration_config(sub.parse_args(["ref.ply", "a.ply", "--out", "o"])).up is None

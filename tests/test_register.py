@@ -520,3 +520,47 @@ def _register_quietly(template, target, config=None):
 def _rotation_error(transform, ref, tgt) -> float:
     """Degrees between the rotation of ``transform`` and the true one from ``ref`` to ``tgt``."""
     return rotation_angle(transform[:3, :3] @ (tgt.pose[:3, :3] @ ref.pose[:3, :3].T).T)
+
+
+def test_up_hint_excludes_upside_down_orientations_and_is_checked():
+    # The pepper pair that came out upside down without the search's taper
+    # (see above), both scanned upright (leaning up to 8 degrees): with the
+    # hint that they stand stalk up, upside-down candidates are excluded
+    # whatever the search's scores, and the target leaning 35 degrees more
+    # still comes out right.
+    from hortishape.align import rotation_about
+    from hortishape.mesh import Mesh
+
+    ref, tgt, template = _synthetic_pair("pepper", 1000, 1007, 10000)
+    hinted = RegistrationConfig(search_taper=False, coverage_check=False, up=(0.0, 0.0, 2.0))
+    assert _rotation_error(_register_quietly(template, tgt.mesh, hinted).transform, ref, tgt) < 10.0
+    lean = rotation_about([1.0, 1.0, 0.0], np.radians(35.0))
+    leaning = Mesh(tgt.mesh.vertices @ lean.T, tgt.mesh.faces)
+    reg = _register_quietly(template, leaning, hinted)
+    axis = reg.transform[:3, :3] @ ref.pose[:3, 2]
+    assert np.degrees(np.arccos(np.clip(axis @ (lean @ tgt.pose[:3, 2]), -1, 1))) < 10.0
+    assert RegistrationConfig(up=(0, 0, 2)).up == (0.0, 0.0, 1.0)  # stored as a unit vector
+    assert RegistrationConfig(up=(0, 0, 2)) == RegistrationConfig(up=(0.0, 0.0, 1.0))
+    for bad in ((0, 0, 0), (1, 2), (np.nan, 0, 1)):
+        with pytest.raises(ValueError, match="up must be"):
+            RegistrationConfig(up=bad)
+
+
+def test_orientation_confidence_is_the_margin_over_a_distinct_orientation():
+    from hortishape.register import ALTERNATIVE_TURN
+
+    ref, tgt, template = _synthetic_pair("apple", 1000, 1003, 5000)
+    reg = _register_quietly(template, tgt.mesh)
+    assert 0.0 <= reg.orientation_confidence < 1.0
+    scores = np.asarray(reg.orientation_scores)
+    chosen = scores[reg.orientation_index]
+    # the distinct alternative (turned more than ALTERNATIVE_TURN degrees away)
+    # was judged at the chosen one's level, so its score is one of the finite
+    # ones, at least the runner-up's (which may be a near-copy of the chosen)
+    finite = np.sort(scores[np.isfinite(scores)])
+    assert len(finite) >= 2 and chosen == finite[0] and ALTERNATIVE_TURN == 45.0
+    margins = 1 - chosen / finite[1:]
+    assert np.isclose(margins, reg.orientation_confidence).any()
+    # no search, no confidence
+    placed = _register_quietly(template, tgt.mesh, RegistrationConfig(orientation="pca"))
+    assert np.isnan(placed.orientation_confidence)

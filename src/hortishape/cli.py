@@ -45,9 +45,12 @@ def _describe(item) -> str:
     if not getattr(item, "ok", True):
         return f" {name}: skipped: {item.error}"
     if hasattr(item, "geometric_error"):  # a registration
+        confidence = getattr(item, "orientation_confidence", float("nan"))
         return (f" {name}: {'resumed' if item.resumed else 'registered'} in {item.seconds:.1f} s, "
                 f"{item.iterations} iterations, d_t {item.mean_distance:.3f} mm, geometric error "
-                f"{item.geometric_error:.4f} mm" + ("" if item.converged else ", not converged"))
+                f"{item.geometric_error:.4f} mm" + ("" if confidence != confidence else
+                                                    f", orientation confidence {confidence:.2f}")
+                + ("" if item.converged else ", not converged"))
     if hasattr(item, "volume_mm3"):  # an extraction
         return (f" {name}: {'resumed' if item.resumed else 'extracted'} in {item.seconds:.1f} s, "
                 f"{item.n_vertices:,} vertices, {item.volume_mm3 / 1000:.1f} mL")
@@ -290,6 +293,11 @@ def _add_registration_options(p) -> None:
                         "taper (affine plus a widening or narrowing along the fruit's axis), quadratic "
                         "(also bend), auto (quadratic for elongated references such as zucchini, banana "
                         "or pear, taper for round ones), or none")
+    g.add_argument("--up", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
+                   help="the scans (reference included) stand with the stalk towards this direction, e.g. "
+                        "0 0 1 for fruit scanned upright on the bed: orientations that put the stalk more than "
+                        "60 degrees from it (upside down, sideways) are excluded; measured right for scans "
+                        "leaning up to 40 degrees (default: no hint, every orientation is searched)")
 
 
 def _registration_config(args):
@@ -301,6 +309,7 @@ def _registration_config(args):
             max_angle=args.max_angle, distance_factor=args.distance_factor,
             distance_floor=args.distance_floor, tolerance=args.tolerance,
             max_iterations=max(50, args.iterations + 20), orientation=args.orientation, warp=args.warp,
+            up=None if args.up is None else tuple(args.up),
         )
     except ValueError as exc:
         raise HortishapeError(str(exc)) from None
@@ -345,13 +354,14 @@ def _add_register(sub) -> None:
 
 def _print_results(results) -> int:
     """Print a table of batch results; returns the number that failed."""
-    print(f"{'scan':<24}{'seconds':>9}{'iter':>6}{'d_t mm':>9}{'geom mm':>9}{'kept':>7}  note")
+    print(f"{'scan':<24}{'seconds':>9}{'iter':>6}{'d_t mm':>9}{'geom mm':>9}{'kept':>7}{'conf':>6}  note")
     failed = 0
     for r in results:
         if r.ok:
             note = ("resumed" if r.resumed else "") + ("" if r.converged else " not converged")
+            conf = "" if r.orientation_confidence != r.orientation_confidence else f"{r.orientation_confidence:.2f}"
             print(f"{r.name:<24}{r.seconds:>9.1f}{r.iterations:>6}{r.mean_distance:>9.3f}"
-                  f"{r.geometric_error:>9.4f}{r.kept_fraction:>7.0%}  {note.strip()}")
+                  f"{r.geometric_error:>9.4f}{r.kept_fraction:>7.0%}{conf:>6}  {note.strip()}")
         else:
             failed += 1
             print(f"{r.name:<24}{'skipped':>9}  {r.error}")

@@ -65,6 +65,10 @@ class InstanceResult:
         (the paper's Table 2 measure).
     kept_fraction : float
         Fraction of reference vertices with a kept correspondence at the end.
+    orientation_confidence : float
+        The orientation search's margin over the best distinct orientation
+        (:attr:`hortishape.register.Registration.orientation_confidence`):
+        0 a tie, towards 1 sure; ``nan`` without a search.
     """
 
     name: str
@@ -78,6 +82,7 @@ class InstanceResult:
     mean_distance: float = float("nan")
     geometric_error: float = float("nan")
     kept_fraction: float = float("nan")
+    orientation_confidence: float = float("nan")
 
 
 def find_meshes(folder) -> list[Path]:
@@ -180,6 +185,7 @@ def _result_from_log(log: dict, source: Path, *, resumed: bool) -> InstanceResul
         name=source.stem, source=str(source), ok=True, resumed=resumed, seconds=s["seconds"],
         iterations=s["iterations"], converged=s["converged"], mean_distance=s["mean_distance_mm"],
         geometric_error=s["geometric_error_mm"], kept_fraction=s["kept_fraction"],
+        orientation_confidence=_number(s.get("orientation_confidence")),
     )
 
 
@@ -213,6 +219,7 @@ def registration_log(reg: Registration, *, source: Path, fingerprint: str, diges
             "geometric_error_mm": float(geometric_error),
             "kept_fraction": float(last.kept_fraction),
             "orientation_index": int(reg.orientation_index),
+            "orientation_confidence": float(reg.orientation_confidence),
         },
         "orientation_scores": np.asarray(reg.orientation_scores).tolist(),
         "transform": np.asarray(reg.transform).tolist(),
@@ -702,6 +709,11 @@ def _orientation_consensus(files: dict, work: Path, register_paths, cfg: Registr
                 rec["kept"] = "runner-up"
         records.append(rec)
     return records
+
+
+def _number(value) -> float:
+    """A JSON number, or NaN for a missing or null one."""
+    return float("nan") if value is None else float(value)
 
 
 def _jsonable(value):
