@@ -42,6 +42,15 @@ def test_builds_from_the_good_scans_and_reports_the_bad_one(built, scans):
     assert len(summary["second_pass"]) == 4
     assert summary["model"]["n_modes"] == 3  # N - 1 modes
     assert summary["units"]["unit"] == "mm" and summary["units"]["scale"] == 1.0
+    # every first-pass search has a confidence; those below the threshold are named
+    from hortishape.pipeline import UNCERTAIN_CONFIDENCE
+
+    confidences = {r["name"]: r["orientation_confidence"] for r in summary["first_pass"]}
+    assert all(c is not None and c <= 1.0 for c in confidences.values())
+    assert summary["uncertain_orientation"] == [
+        {"name": n, "confidence": c} for n, c in confidences.items()
+        if n in built.names and c < UNCERTAIN_CONFIDENCE]
+    assert built.uncertain_orientation == tuple((u["name"], u["confidence"]) for u in summary["uncertain_orientation"])
     assert all(60 < e < 120 for e in summary["units"]["extent_mm"].values())  # apples, mm
 
 

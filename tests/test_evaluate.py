@@ -201,3 +201,28 @@ def test_cli_evaluate(built, tmp_path, capsys):
     assert err.count("\n") == 1 and "not a built model directory" in err
     assert main(["evaluate", str(out), "--modes", "9"]) == 1
     assert "at most 3" in capsys.readouterr().err
+
+
+def test_instances_of_uncertain_orientation_are_named_and_pictured(built, tmp_path):
+    import shutil
+
+    out, *_ = built
+    copy = tmp_path / "model"
+    shutil.copytree(out, copy, ignore=shutil.ignore_patterns("evaluation"))
+    summary = json.loads((copy / "summary.json").read_text())
+    summary["uncertain_orientation"] = [{"name": "apple_002", "confidence": 0.012},
+                                        {"name": "not_in_the_model", "confidence": 0.001}]
+    (copy / "summary.json").write_text(json.dumps(summary))
+    ev = evaluate_model(copy, n_samples=10, random_state=0)
+    assert ev.uncertain_orientation == (("apple_002", 0.012),)
+    assert any("apple_002 (0.012)" in note for note in ev.notes)
+    picture = ev.files["uncertain_png"]
+    assert picture.name == "uncertain_orientation.png" and picture.stat().st_size > 1000
+    page = ev.files["report"].read_text()
+    assert 'id="orientation"' in page and "apple_002" in page
+    # a build without uncertain instances: no picture, no section, and the old picture is removed
+    summary["uncertain_orientation"] = []
+    (copy / "summary.json").write_text(json.dumps(summary))
+    ev = evaluate_model(copy, n_samples=10, random_state=0)
+    assert "uncertain_png" not in ev.files and not picture.exists()
+    assert 'id="orientation"' not in ev.files["report"].read_text()

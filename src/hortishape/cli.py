@@ -459,6 +459,11 @@ def _print_build(result) -> None:
     _print_results(result.second_pass)
     for path, reason in result.skipped:
         print(f"skipped {path}: {reason}")
+    if result.uncertain_orientation:
+        from .pipeline import UNCERTAIN_CONFIDENCE
+
+        listed = ", ".join(f"{n} ({c:.3f})" for n, c in result.uncertain_orientation)
+        print(f"orientation uncertain (confidence below {UNCERTAIN_CONFIDENCE:g}; check these): {listed}")
     var = result.explained_variance
     share = var / var.sum() if var.size else var
     cumulative = share.cumsum()

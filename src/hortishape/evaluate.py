@@ -139,6 +139,9 @@ class Evaluation:
         Where the landmarks came from.
     notes : tuple of str
         What was skipped and why, in plain words.
+    uncertain_orientation : tuple of (str, float)
+        ``(name, confidence)`` of the instances the build named as of
+        uncertain orientation (``summary.json``), pictured in the report.
     files : Mapping of str to Path
         What was written: ``"report"``, ``"metrics_json"``, ``"metrics_csv"``,
         ``"error_map_ply"``, ... (empty when nothing was written).
@@ -161,6 +164,7 @@ class Evaluation:
     landmarks: LandmarkTransfer | None
     landmarks_source: str | None
     notes: tuple
+    uncertain_orientation: tuple = ()
     files: Mapping = field(default_factory=dict)
     seconds: float = 0.0
     timings: Mapping = field(default_factory=dict)
@@ -597,10 +601,18 @@ def evaluate_model(
             transfer = transfer_landmarks(registered, faces, arr, names=lm_names, mean=model.mean_)
     timings["landmarks"] = time.perf_counter() - t0
 
+    uncertain = tuple((str(u["name"]), float(u["confidence"])) for u in summary.get("uncertain_orientation") or []
+                      if str(u.get("name")) in names)
+    if uncertain:
+        notes.append(f"the build found the orientation of {len(uncertain)} instance(s) uncertain (their search's "
+                     "margin over a distinct orientation was small): "
+                     + ", ".join(f"{n} ({c:.3f})" for n, c in uncertain)
+                     + "; see the pictures under 'Orientation' and check that they match the mean")
+
     ev = Evaluation(
         model_dir=mdir, names=tuple(names), n_points=model.n_points_, compactness=comp, generalization=gen,
         specificity=spec, dimensions=dims, geometric_error=geo, landmarks=transfer, landmarks_source=lm_source,
-        notes=tuple(notes), seconds=time.perf_counter() - start, timings=timings,
+        notes=tuple(notes), uncertain_orientation=uncertain, seconds=time.perf_counter() - start, timings=timings,
         settings={"n_samples": int(n_samples), "truncate": truncate, "scaling": scaling,
                   "random_state": random_state if isinstance(random_state, (int, type(None))) else "given"},
     )
@@ -777,7 +789,7 @@ def write_evaluation(
     from dataclasses import replace
 
     from . import report
-    from .io import write_mesh
+    from .io import read_mesh, write_mesh
 
     t0 = time.perf_counter()
     out = Path(folder)
@@ -806,6 +818,10 @@ def write_evaluation(
     n_modes = min(3, model.n_components_)
     files["modes_png"] = report.render_modes(model, out / "modes.png", n_modes=n_modes)
     files["samples_png"] = report.render_samples(model, out / "samples.png", random_state=random_state)
+    if ev.uncertain_orientation:
+        files["uncertain_png"] = report.render_uncertain(
+            mean_mesh, [read_mesh(ev.model_dir / "aligned" / f"{n}.ply").vertices for n, _ in ev.uncertain_orientation],
+            [f"{n} ({c:.3f})" for n, c in ev.uncertain_orientation], out / "uncertain_orientation.png")
     timings = dict(ev.timings)
     timings["pictures"] = time.perf_counter() - t0
     seconds = time.perf_counter() - start if start is not None else ev.seconds + timings["pictures"]
@@ -814,7 +830,7 @@ def write_evaluation(
     files["metrics_csv"] = _atomic_text(out / "metrics.csv", metrics_csv(ev))
     files["report"] = report.write_report(ev, out / "report.html")
     # files an earlier evaluation wrote that this one did not (no scans, no landmarks now)
-    for stale in ("error_map.ply", "error_map.vtk", "error_map.png", "landmarks.png"):
+    for stale in ("error_map.ply", "error_map.vtk", "error_map.png", "landmarks.png", "uncertain_orientation.png"):
         if (out / stale) not in files.values():
             (out / stale).unlink(missing_ok=True)
     return replace(ev, files=dict(files))

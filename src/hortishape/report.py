@@ -21,12 +21,13 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
 if TYPE_CHECKING:  # pragma: no cover
     from .evaluate import Evaluation
+    from .mesh import Mesh
     from .metrics import Compactness, Generalization, LandmarkTransfer, Specificity
     from .model import ShapeModel
 
@@ -38,6 +39,7 @@ __all__ = [
     "plot_specificity",
     "render_error_map",
     "render_modes",
+    "render_uncertain",
     "render_samples",
     "write_mode_meshes",
     "write_report",
@@ -236,6 +238,56 @@ def render_samples(
     return render_grid([*meshes, *(_turned(m, "top") for m in meshes)], path,
                        titles=[f"sample {i + 1}, {v}" for v in ("front", "top") for i in range(n)],
                        n_cols=n, views=("front",), cell_size=(220, 240), backend=backend)
+
+
+def render_uncertain(
+    mean: Mesh,
+    shapes: Sequence[np.ndarray],
+    titles: Sequence[str],
+    path: str | os.PathLike,
+    *,
+    backend: str = "auto",
+) -> Path:
+    """Picture of instances beside the mean, front and top view, in the model's frame.
+
+    The instances are the Procrustes-aligned corresponded surfaces
+    (``aligned/<stem>.ply``): one whose orientation went wrong shows its
+    stalk or lobes where the mean has none, since its correspondence is
+    turned with it.
+
+    Parameters
+    ----------
+    mean : Mesh
+        The model's mean shape.
+    shapes : sequence of (n, 3) array_like of float
+        The instances' aligned vertices (the mean's vertex order).
+    titles : sequence of str
+        One per instance.
+    path : str or os.PathLike
+        Output ``.png``.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+
+    Examples
+    --------
+    >>> import tempfile, trimesh
+    >>> from hortishape.mesh import Mesh
+    >>> s = trimesh.creation.icosphere(subdivisions=2, radius=30.0)
+    >>> mean = Mesh(s.vertices, s.faces)
+    >>> render_uncertain(mean, [s.vertices * [1.2, 1, 1]], ["a (0.010)"], tempfile.mkdtemp() + "/u.png",
+    ...                  backend="matplotlib").name
+    'u.png'
+    """
+    from .render import render_grid
+
+    meshes = [mean, *(mean.with_vertices(v) for v in shapes)]
+    names = ["mean", *titles]
+    return render_grid([*meshes, *(_turned(m, "top") for m in meshes)], path,
+                       titles=[f"{t}, {v}" for v in ("front", "top") for t in names],
+                       n_cols=len(meshes), views=("front",), cell_size=(220, 240), backend=backend)
 
 
 # Turns that make the "front" view of the turned copy show another view
@@ -773,6 +825,12 @@ def write_report(ev: "Evaluation", path: str | os.PathLike) -> Path:
                      [[nm, *(_g(v) for v in errs[i]), *(_g(v) for v in surf[i])] for i, nm in enumerate(ev.names)])
             + "</details>")
 
+    if files.get("uncertain_png"):
+        add('<h2 id="orientation">Orientation</h2>')
+        add("<p>The build found the orientation of these instances uncertain: the orientation search's margin "
+            "over a distinct orientation (turned more than 45 degrees away) was small. Below, each beside the "
+            "mean in the model's frame: one whose orientation went wrong shows its stalk or lobes turned away "
+            "from the mean's. Confidence in brackets (0: a tie).</p>" + _img(files.get("uncertain_png")))
     add('<h2 id="modes">Shape modes (Fig. 7)</h2>' + _img(files.get("modes_png")))
     add('<p class="small">The mean and the mean moved \u00b13 standard deviations along each of the first modes, '
         "front and top view, all at the same scale.</p>")
