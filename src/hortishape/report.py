@@ -230,14 +230,18 @@ def render_samples(
     >>> render_samples(model, tempfile.mkdtemp() + "/s.png", n=2, random_state=0, backend="matplotlib").name
     's.png'
     """
-    from .render import render_grid
-
     shapes = model.sample(n, modes=min(modes, model.n_components_), truncate=truncate, random_state=random_state)
     meshes = [model.to_mesh(s) for s in shapes]
-    # one row of front views above one row of top views, all at one scale
+    return _front_and_top(meshes, [f"sample {i + 1}" for i in range(n)], path, backend)
+
+
+def _front_and_top(meshes, names, path, backend: str) -> Path:
+    """One row of front views above one row of top views, all at one scale."""
+    from .render import render_grid
+
     return render_grid([*meshes, *(_turned(m, "top") for m in meshes)], path,
-                       titles=[f"sample {i + 1}, {v}" for v in ("front", "top") for i in range(n)],
-                       n_cols=n, views=("front",), cell_size=(220, 240), backend=backend)
+                       titles=[f"{t}, {v}" for v in ("front", "top") for t in names],
+                       n_cols=len(meshes), views=("front",), cell_size=(220, 240), backend=backend)
 
 
 def render_uncertain(
@@ -281,13 +285,8 @@ def render_uncertain(
     ...                  backend="matplotlib").name
     'u.png'
     """
-    from .render import render_grid
-
     meshes = [mean, *(mean.with_vertices(v) for v in shapes)]
-    names = ["mean", *titles]
-    return render_grid([*meshes, *(_turned(m, "top") for m in meshes)], path,
-                       titles=[f"{t}, {v}" for v in ("front", "top") for t in names],
-                       n_cols=len(meshes), views=("front",), cell_size=(220, 240), backend=backend)
+    return _front_and_top(meshes, ["mean", *titles], path, backend)
 
 
 # Turns that make the "front" view of the turned copy show another view
