@@ -174,3 +174,31 @@ def test_orientation_consensus_keeps_the_registration_that_agrees_with_the_other
     rec = {r["name"]: r for r in records}[bad.stem]
     assert rec["kept"] == "runner-up" and rec["runner_up_distance_mm"] < rec["distance_mm"]
     assert files[bad] == tmp_path / "first-pass-rank1" / f"{bad.stem}.ply"
+
+
+def test_cli_register_with_landmarks(scans, tmp_path, capsys):
+    from hortishape.cli import main
+
+    out = tmp_path / "r"
+    args = ["register", str(scans / "apple_000.ply"), str(scans / "apple_001.ply"), "--out", str(out),
+            "--points", "2000", "--iterations", "12", "--jobs", "1"]
+    # the ground truth beside the scans names stalk_tip and bottom on each
+    assert main([*args, "--landmarks", str(scans)]) == 0
+    log = json.loads((out / "apple_001.json").read_text())
+    assert log["landmarks"] == ["bottom", "stalk_tip"]
+    # the reference's vertex nearest its calyx mark is pulled onto the scan's (at 2,000
+    # vertices the thin stalk is not resolved: its nearest vertex lies on the body)
+    from hortishape.register import prepare_reference
+
+    ref_bottom = json.loads((scans / "apple_000.truth.json").read_text())["landmarks"]["bottom"]
+    template = prepare_reference(read_mesh(scans / "apple_000.ply"), 2000)
+    j = int(np.argmin(np.linalg.norm(template.mesh.vertices - ref_bottom, axis=1)))
+    bottom = json.loads((scans / "apple_001.truth.json").read_text())["landmarks"]["bottom"]
+    assert np.linalg.norm(read_mesh(out / "apple_001.ply").vertices[j] - bottom) < 0.5
+    # without landmarks it is another registration (not resumed); a file without the reference is refused
+    capsys.readouterr()
+    assert main(args) == 0 and "resumed" not in capsys.readouterr().out
+    marks = tmp_path / "marks.json"
+    marks.write_text(json.dumps({"apple_001": {"stalk": [0, 0, 0]}}))
+    assert main([*args, "--landmarks", str(marks)]) == 1
+    assert "no landmarks for the reference apple_000" in capsys.readouterr().err

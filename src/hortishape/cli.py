@@ -347,6 +347,12 @@ def _add_register(sub) -> None:
     p.add_argument("--jobs", type=_positive_int, default=None, metavar="J",
                    help="parallel processes (default: all cores)")
     p.add_argument("--strict", action="store_true", help="stop at the first target that fails")
+    p.add_argument("--landmarks", type=Path, default=None, metavar="FILE_OR_DIR",
+                   help="named points per scan, in each scan's coordinates (JSON {stem: {name: [x, y, z]}}, CSV "
+                        "instance,landmark,x,y,z, or a folder of <stem>.truth.json), e.g. stalk and calyx: "
+                        "the names the reference shares with a scan fix its orientation (three or more not on "
+                        "one line: the whole orientation; two: the axis through them) and are pulled together "
+                        "(default: none)")
     _add_scale(p)
     _add_registration_options(p)
     p.set_defaults(run=_run_register)
@@ -377,12 +383,20 @@ def _run_register(args) -> int:
     config = _registration_config(args)
     start = time.perf_counter()
     reference = read_scan(args.reference, scale=args.scale).mesh
+    marks, reference_marks = None, None
+    if args.landmarks is not None:
+        from .evaluate import read_landmarks
+
+        marks = read_landmarks(args.landmarks)
+        if args.reference.stem not in marks:
+            raise HortishapeError(f"{args.landmarks}: no landmarks for the reference {args.reference.stem}")
+        reference_marks = {n: p * args.scale for n, p in marks[args.reference.stem].items()}
     print(f"preparing the reference {args.reference} ({reference.n_vertices:,} vertices"
           + ("" if args.no_resample else f" -> {args.points:,}") + ")", file=sys.stderr)
     template = prepare_reference(reference, None if args.no_resample else args.points)
     results = register_files(template, args.targets, args.out, config=config, n_jobs=args.jobs,
                              strict=args.strict, progress=_progress(len(args.targets), "register", "scan"),
-                             scale=args.scale)
+                             scale=args.scale, landmarks=marks, reference_landmarks=reference_marks)
     failed = _print_results(results)
     print(f"registered {len(results) - failed} of {len(results)} scans to {args.out} "
           f"in {time.perf_counter() - start:.1f} s")

@@ -21,7 +21,7 @@ import traceback
 import warnings
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Callable, Iterable, Sequence
+from typing import Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
@@ -168,8 +168,10 @@ def _file_digest(path: Path) -> str:
 _WORKER: dict = {}
 
 
-def _init_worker(template: Template, config: RegistrationConfig, fingerprint: str, scale: float = 1.0) -> None:
-    _WORKER.update(template=template, config=config, fingerprint=fingerprint, scale=scale)
+def _init_worker(template: Template, config: RegistrationConfig, fingerprint: str, scale: float = 1.0,
+                 reference_landmarks: dict | None = None) -> None:
+    _WORKER.update(template=template, config=config, fingerprint=fingerprint, scale=scale,
+                   reference_landmarks=reference_landmarks)
     # numpy/BLAS threads would fight the other workers for the cores
     os.environ.setdefault("OMP_NUM_THREADS", "1")
 
@@ -227,19 +229,26 @@ def registration_log(reg: Registration, *, source: Path, fingerprint: str, diges
     }
 
 
-def _job_fingerprint(fingerprint: str, initial_transform) -> str:
-    """The pass's fingerprint, extended by the scan's own starting transform if it has one."""
-    if initial_transform is None:
+def _job_fingerprint(fingerprint: str, initial_transform, landmarks=None) -> str:
+    """The pass's fingerprint, extended by the scan's own starting transform and landmarks if it has them."""
+    if initial_transform is None and not landmarks:
         return fingerprint
-    t = np.ascontiguousarray(np.asarray(initial_transform, dtype=np.float64))
-    return hashlib.sha256(fingerprint.encode() + t.tobytes()).hexdigest()
+    h = hashlib.sha256(fingerprint.encode())
+    if initial_transform is not None:
+        h.update(np.ascontiguousarray(np.asarray(initial_transform, dtype=np.float64)).tobytes())
+    for name in sorted(landmarks or {}):
+        h.update(name.encode() + np.asarray(landmarks[name], dtype=np.float64).tobytes())
+    return h.hexdigest()
 
 
 def _register_file(job) -> InstanceResult:
-    source, out_dir, initial_transform = job
+    source, out_dir, initial_transform, landmarks = job
     source, out_dir = Path(source), Path(out_dir)
     template, config = _WORKER["template"], _WORKER["config"]
-    fingerprint = _job_fingerprint(_WORKER["fingerprint"], initial_transform)
+    reference_landmarks = _WORKER.get("reference_landmarks")
+    if not reference_landmarks:
+        landmarks = None
+    fingerprint = _job_fingerprint(_WORKER["fingerprint"], initial_transform, landmarks)
     try:
         digest = _file_digest(source)
         done = _done_before(source, out_dir, fingerprint, digest)
@@ -249,12 +258,16 @@ def _register_file(job) -> InstanceResult:
         target = scan.mesh
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", ConvergenceWarning)  # reported as converged=False
-            reg = register(template, target, config, initial_transform=initial_transform)
+            reg = register(template, target, config, initial_transform=initial_transform,
+                           reference_landmarks=reference_landmarks if landmarks else None,
+                           target_landmarks=landmarks or None)
         from .surface import closest_points
 
         geometric = float(closest_points(target, reg.vertices).distances.mean())
         log = registration_log(reg, source=source, fingerprint=fingerprint, digest=digest,
                                geometric_error=geometric, units=scan.units)
+        if landmarks:
+            log["landmarks"] = sorted(set(landmarks) & set(reference_landmarks))
         write_mesh(out_dir / f"{source.stem}.ply", reg.mesh)
         # the log last: its presence with the right fingerprint marks the scan done
         _atomic_text(out_dir / f"{source.stem}.json", json.dumps(_jsonable(log), indent=1))
@@ -287,6 +300,8 @@ def register_files(
     progress: Progress | None = None,
     initial_transforms: Sequence | None = None,
     scale: float = 1.0,
+    landmarks: Mapping | None = None,
+    reference_landmarks: Mapping | None = None,
 ) -> list[InstanceResult]:
     """Register ``reference`` to every scan file and write the results.
 
@@ -321,6 +336,15 @@ def register_files(
         scans in metres); each scan's size is then checked
         (:func:`hortishape.units.check_size`), and the registered surface is
         in mm.
+    landmarks : mapping of str to mapping of str to (3,) array_like, optional
+        Per scan stem, named points on that scan in its file's units (e.g.
+        from :func:`hortishape.evaluate.read_landmarks`); with
+        ``reference_landmarks``, the named points on the reference in mm,
+        they fix each scan's orientation and are pulled together (see
+        ``reference_landmarks`` of :func:`hortishape.register.register`). A
+        scan without any is registered as without landmarks.
+    reference_landmarks : mapping of str to (3,) array_like, optional
+        Named points on the reference, in mm, in its coordinates.
 
     Returns
     -------
@@ -346,12 +370,22 @@ def register_files(
     starts = list(initial_transforms) if initial_transforms is not None else [None] * len(targets)
     if len(starts) != len(targets):
         raise ValueError(f"{len(starts)} initial transforms for {len(targets)} scans")
-    jobs = [(str(t), str(out_dir), None if a is None else np.asarray(a, dtype=np.float64).reshape(4, 4))
+    marks = {stem: {name: np.asarray(p, dtype=np.float64) * scale for name, p in m.items()}
+             for stem, m in (landmarks or {}).items()}
+    ref_marks = None if reference_landmarks is None else {
+        name: np.asarray(p, dtype=np.float64) for name, p in reference_landmarks.items()}
+    if ref_marks is not None and marks:
+        shared = set(ref_marks) & set().union(*(set(m) for m in marks.values()))
+        if not shared:
+            raise HortishapeError(f"no landmark names the reference ({', '.join(sorted(ref_marks))}) shares "
+                                  "with any scan")
+    jobs = [(str(t), str(out_dir), None if a is None else np.asarray(a, dtype=np.float64).reshape(4, 4),
+             {n: p for n, p in marks.get(t.stem, {}).items() if ref_marks and n in ref_marks} or None)
             for t, a in zip(targets, starts)]
     try:
         results = run_jobs(_register_file, jobs, n_jobs=n_jobs, progress=progress,
                            stop=raise_failed if strict else None,
-                           initializer=_init_worker, initargs=(template, cfg, fingerprint, scale))
+                           initializer=_init_worker, initargs=(template, cfg, fingerprint, scale, ref_marks))
     finally:
         _WORKER.clear()  # when the jobs ran in this process
     return results  # type: ignore[return-value]

@@ -228,6 +228,11 @@ COARSE_ANGLE_SLACK = 15.0
 UNCOVERED_MAX = 0.01
 UNCOVERED_EDGES = 2.0
 
+#: Three landmarks or more fix the orientation by their rigid fit unless they
+#: lie nearly on a line: their spread across the line (second singular value)
+#: must be at least this fraction of the spread along it.
+LANDMARK_SPREAD = 0.05
+
 #: With a hint of the stalk's direction (``up``, ``reference_up`` and
 #: ``target_up``), orientations found by the search that put the reference's
 #: stalk more than this many degrees from it are excluded: upside-down and
@@ -897,8 +902,12 @@ def _iterate(
     affine: bool = False,
     taper_axis: np.ndarray | None = None,
     prolong: sp.csr_matrix | None = None,
+    anchors: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[float, float]:
     """One RN-ICP-T iteration in place on ``state``; returns (d_t, kept fraction).
+
+    ``anchors`` (vertex indices of the level, (k, 3) target points): landmark
+    pairs, kept as correspondences whatever the rays found there.
 
     ``taper_axis`` (a unit vector of the level in its undeformed pose): the
     global step also fits a taper about that axis as carried by
@@ -908,22 +917,22 @@ def _iterate(
     pos = state.positions
     corr = _match(pos, level.faces, target, cfg, max_distance=_max_distance(cfg, state.prev_distance, level),
                   check_crossings=cfg.check_crossings, edge_length=level.edge_length)
-    found = corr.found
+    found, points = _anchored(corr.found, corr.points, anchors)
     kept = corr.kept_fraction
     if found.sum() < 3:
         return np.inf, kept
     d_t = corr.mean_distance
     if rigid:
-        step = _affine_fit(pos[found], corr.points[found]) if affine else None
+        step = _affine_fit(pos[found], points[found]) if affine else None
         if step is None:
-            step = rigid_fit(pos[found], corr.points[found])
+            step = rigid_fit(pos[found], points[found])
         pos = apply_transform(step, pos)
         state.transform = step @ state.transform
         if taper_axis is not None:
             axis = state.transform[:3, :3] @ taper_axis
-            pos = _taper_step(pos, found, corr.points[found], axis / np.linalg.norm(axis))
+            pos = _taper_step(pos, found, points[found], axis / np.linalg.norm(axis))
     w = found.astype(np.float64)
-    rhs = np.where(found[:, None], corr.points - pos, 0.0)
+    rhs = np.where(found[:, None], points - pos, 0.0)
     if use_pcg:
         # the coarse-grid correction pays off only while beta is high
         x = _solve_pcg(
@@ -934,6 +943,17 @@ def _iterate(
     state.positions = pos + x
     state.prev_distance = d_t
     return d_t, kept
+
+
+def _anchored(found: np.ndarray, points: np.ndarray, anchors) -> tuple[np.ndarray, np.ndarray]:
+    """Correspondences with the landmark pairs put in (copies; the same arrays without anchors)."""
+    if anchors is None:
+        return found, points
+    idx, q = anchors
+    found, points = found.copy(), points.copy()
+    found[idx] = True
+    points[idx] = q
+    return found, points
 
 
 def _taper_step(positions: np.ndarray, found: np.ndarray, points: np.ndarray, axis: np.ndarray,
@@ -1523,6 +1543,8 @@ def register(
     initial_transform=None,
     reference_up=None,
     target_up=None,
+    reference_landmarks=None,
+    target_landmarks=None,
     callback: Callable[[IterationRecord], None] | None = None,
 ) -> Registration:
     """Register a reference surface elastically onto a target (RN-ICP-T, eq. 8).
@@ -1547,6 +1569,13 @@ def register(
         than ``UP_TOLERANCE`` degrees from the target's are excluded (see
         ``up`` in :class:`RegistrationConfig`, the default for both). Give
         both or neither.
+    reference_landmarks, target_landmarks : mapping of str to (3,) array_like, optional
+        Named points (e.g. ``"stalk"``, ``"calyx"``) on the reference, in its
+        coordinates, and on the target, in the target's; the names in both
+        are used. Three or more not on one line fix the orientation (their
+        rigid fit; no search), two fix the axis through them as ``up``
+        does; and the reference vertex nearest each is pulled onto the
+        target's point in every iteration, whatever the rays find there.
     callback : callable, optional
         Called with each :class:`IterationRecord` as it is logged (progress).
         When ``coverage_check`` registers again, the second registration's
@@ -1587,6 +1616,15 @@ def register(
     coarse = template.level("coarse")
 
     # --- initial alignment ---------------------------------------------------
+    pairs = _landmark_pairs(reference_landmarks, target_landmarks)
+    if pairs is not None and initial_transform is None and cfg.orientation != "none":
+        p, q = pairs
+        centred = p - p.mean(axis=0)
+        sv = np.linalg.svd(centred, compute_uv=False) if len(p) >= 3 else np.zeros(2)
+        if len(p) >= 3 and sv[1] > LANDMARK_SPREAD * sv[0]:
+            initial_transform = rigid_fit(p, q)
+        elif len(p) >= 2 and reference_up is None:
+            reference_up, target_up = p[0] - p[-1], q[0] - q[-1]
     if reference_up is None and target_up is None and cfg.up is not None:
         reference_up = target_up = cfg.up
     scores = np.zeros(0)
@@ -1674,6 +1712,10 @@ def register(
             base_c, base_f = warp(base_c), warp(base_f)
             warp_affine = warp.affine(apply_transform(t0, fine.vertices))
 
+        anchors = {} if pairs is None else {
+            name: (_nearest_vertices(lev.vertices, pairs[0]), pairs[1]) for name, lev in (("coarse", coarse), ("fine", fine))
+        }
+
         # --- schedule ------------------------------------------------------------
         betas = cfg.betas()
         ratio = fine.edge_length / coarse.edge_length
@@ -1705,6 +1747,7 @@ def register(
                 rigid=cfg.rigid_steps,
                 affine=cfg.affine == "all" or (cfg.affine == "stiff" and beta * ratio >= COARSE_MIN_BETA),
                 prolong=template.prolongation() if on_coarse else None,
+                anchors=anchors.get(level_name),
             )
             record(it, level_name, beta, d_t, kept, t_it)
             if not np.isfinite(d_t):
@@ -1738,8 +1781,9 @@ def register(
             old = state.positions
             corr = _match(old, fine.faces, tgt, cfg, max_distance=_max_distance(cfg, state.prev_distance, fine),
                           check_crossings=cfg.check_crossings, edge_length=fine.edge_length)
-            w = corr.found.astype(np.float64)
-            rhs = np.where(corr.found[:, None], corr.points - old, 0.0)
+            found, points = _anchored(corr.found, corr.points, anchors.get("fine"))
+            w = found.astype(np.float64)
+            rhs = np.where(found[:, None], points - old, 0.0)
             x = _solve_pcg(fine.laplacian, cfg.final_beta, w, rhs, rhs, tol=1e-8)
             state.positions = _unfold_step(fine.faces, old, old + x)
             record(it, "final", cfg.final_beta, corr.mean_distance, corr.kept_fraction, t_it)
@@ -1805,6 +1849,32 @@ def _refined_start(template: Template, target: TargetSurface, candidate: np.ndar
         if judged[1] < judged[0]:
             t0 = refined
     return t0
+
+
+def _landmark_pairs(reference_landmarks, target_landmarks) -> tuple[np.ndarray, np.ndarray] | None:
+    """The landmarks named on both sides, as (k, 3) reference and target points in name order, or None."""
+    if reference_landmarks is None and target_landmarks is None:
+        return None
+    if reference_landmarks is None or target_landmarks is None:
+        raise ValueError("give both reference_landmarks and target_landmarks, or neither")
+    names = sorted(set(reference_landmarks) & set(target_landmarks))
+    if not names:
+        raise ValueError(
+            f"no landmark is named on both the reference ({', '.join(sorted(reference_landmarks)) or 'none'}) "
+            f"and the target ({', '.join(sorted(target_landmarks)) or 'none'})"
+        )
+    p = np.array([np.asarray(reference_landmarks[n], dtype=np.float64).reshape(3) for n in names])
+    q = np.array([np.asarray(target_landmarks[n], dtype=np.float64).reshape(3) for n in names])
+    if not (np.isfinite(p).all() and np.isfinite(q).all()):
+        raise ValueError("landmarks must be finite points")
+    return p, q
+
+
+def _nearest_vertices(vertices: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Index of the vertex nearest each point."""
+    from scipy.spatial import cKDTree
+
+    return cKDTree(vertices).query(points)[1].astype(np.int64)
 
 
 def _up_hint(reference_up, target_up) -> tuple[np.ndarray, np.ndarray] | None:
