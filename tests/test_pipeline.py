@@ -198,6 +198,13 @@ def test_cli_register_with_landmarks(scans, tmp_path, capsys):
     # without landmarks it is another registration (not resumed); a file without the reference is refused
     capsys.readouterr()
     assert main(args) == 0 and "resumed" not in capsys.readouterr().out
+    # another mark on the reference is another registration too
+    truth = {s: json.loads((scans / f"{s}.truth.json").read_text())["landmarks"] for s in ("apple_000", "apple_001")}
+    truth["apple_000"]["bottom"][2] += 1.0
+    moved = tmp_path / "moved.json"
+    moved.write_text(json.dumps(truth))
+    assert main([*args, "--landmarks", str(moved)]) == 0 and "resumed" not in capsys.readouterr().out
+    assert main([*args, "--landmarks", str(moved)]) == 0 and "resumed" in capsys.readouterr().out
     marks = tmp_path / "marks.json"
     marks.write_text(json.dumps({"apple_001": {"stalk": [0, 0, 0]}}))
     assert main([*args, "--landmarks", str(marks)]) == 1

@@ -229,15 +229,16 @@ def registration_log(reg: Registration, *, source: Path, fingerprint: str, diges
     }
 
 
-def _job_fingerprint(fingerprint: str, initial_transform, landmarks=None) -> str:
-    """The pass's fingerprint, extended by the scan's own starting transform and landmarks if it has them."""
+def _job_fingerprint(fingerprint: str, initial_transform, landmarks=None, reference_landmarks=None) -> str:
+    """The pass's fingerprint, extended by the scan's own starting transform and landmark pairs if it has them."""
     if initial_transform is None and not landmarks:
         return fingerprint
     h = hashlib.sha256(fingerprint.encode())
     if initial_transform is not None:
         h.update(np.ascontiguousarray(np.asarray(initial_transform, dtype=np.float64)).tobytes())
-    for name in sorted(landmarks or {}):
-        h.update(name.encode() + np.asarray(landmarks[name], dtype=np.float64).tobytes())
+    for side in (landmarks, reference_landmarks) if landmarks else ():
+        for name in sorted(side):
+            h.update(name.encode() + np.asarray(side[name], dtype=np.float64).tobytes())
     return h.hexdigest()
 
 
@@ -248,7 +249,7 @@ def _register_file(job) -> InstanceResult:
     reference_landmarks = _WORKER.get("reference_landmarks")
     if not reference_landmarks:
         landmarks = None
-    fingerprint = _job_fingerprint(_WORKER["fingerprint"], initial_transform, landmarks)
+    fingerprint = _job_fingerprint(_WORKER["fingerprint"], initial_transform, landmarks, reference_landmarks)
     try:
         digest = _file_digest(source)
         done = _done_before(source, out_dir, fingerprint, digest)
