@@ -149,3 +149,31 @@ def test_cli_build_sample_modes_fit(built, scans, tmp_path, capsys):
 def test_cli_build_of_a_missing_folder_is_one_line(tmp_path, capsys):
     assert main(["build", str(tmp_path / "nope"), "--out", str(tmp_path / "o")]) == 1
     assert "not a folder" in capsys.readouterr().err
+
+
+def test_cli_build_with_landmarks(scans, tmp_path, capsys):
+    # the ground truth beside the scans names stalk_tip and bottom on each
+    out = tmp_path / "m"
+    assert main(["build", str(scans), "--out", str(out), "--points", "2000", "--iterations", "12",
+                 "--landmarks", str(scans)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    names = summary["instances"]
+    for folder in (out / "work" / "first-pass", out / "registered"):
+        for name in names:
+            assert json.loads((folder / f"{name}.json").read_text())["landmarks"] == ["bottom", "stalk_tip"]
+    # in both passes the vertex nearest the reference's calyx mark is pulled onto each scan's
+    ref = summary["reference"].rsplit("/", 1)[-1][: -len(".ply")]
+    from hortishape.register import prepare_reference
+
+    ref_bottom = json.loads((scans / f"{ref}.truth.json").read_text())["landmarks"]["bottom"]
+    template = prepare_reference(read_mesh(scans / f"{ref}.ply"), 2000)
+    j = int(np.argmin(np.linalg.norm(template.mesh.vertices - ref_bottom, axis=1)))
+    for name in names:
+        bottom = json.loads((scans / f"{name}.truth.json").read_text())["landmarks"]["bottom"]
+        assert np.linalg.norm(read_mesh(out / "registered" / f"{name}.ply").vertices[j] - bottom) < 0.5
+    capsys.readouterr()
+    marks = tmp_path / "marks.json"
+    marks.write_text(json.dumps({"apple_001": {"stalk": [0, 0, 0]}}))
+    assert main(["build", str(scans), "--out", str(tmp_path / "n"), "--points", "2000", "--reference",
+                 str(scans / "apple_000.ply"), "--landmarks", str(marks)]) == 1
+    assert "no landmarks for the reference apple_000" in capsys.readouterr().err

@@ -89,6 +89,15 @@ def _progress(total: int, desc: str, unit: str = "instance") -> Callable:
     return wrap
 
 
+def _add_landmarks(p) -> None:
+    p.add_argument("--landmarks", type=Path, default=None, metavar="FILE_OR_DIR",
+                   help="named points per scan, in each scan's coordinates (JSON {stem: {name: [x, y, z]}}, CSV "
+                        "instance,landmark,x,y,z, or a folder of <stem>.truth.json), e.g. stalk and calyx: "
+                        "the names the reference shares with a scan fix its orientation (three or more not on "
+                        "one line: the whole orientation; two: the axis through them) and are pulled together "
+                        "(default: none)")
+
+
 def _add_scale(p) -> None:
     p.add_argument("--scale", type=_positive_float, default=1.0, metavar="FACTOR",
                    help="multiply the scans' coordinates by FACTOR to give millimetres (1000 for scans in "
@@ -347,12 +356,7 @@ def _add_register(sub) -> None:
     p.add_argument("--jobs", type=_positive_int, default=None, metavar="J",
                    help="parallel processes (default: all cores)")
     p.add_argument("--strict", action="store_true", help="stop at the first target that fails")
-    p.add_argument("--landmarks", type=Path, default=None, metavar="FILE_OR_DIR",
-                   help="named points per scan, in each scan's coordinates (JSON {stem: {name: [x, y, z]}}, CSV "
-                        "instance,landmark,x,y,z, or a folder of <stem>.truth.json), e.g. stalk and calyx: "
-                        "the names the reference shares with a scan fix its orientation (three or more not on "
-                        "one line: the whole orientation; two: the axis through them) and are pulled together "
-                        "(default: none)")
+    _add_landmarks(p)
     _add_scale(p)
     _add_registration_options(p)
     p.set_defaults(run=_run_register)
@@ -460,6 +464,7 @@ def _add_build(sub) -> None:
     p.add_argument("--jobs", type=_positive_int, default=None, metavar="J",
                    help="parallel registrations (default: all cores)")
     p.add_argument("--strict", action="store_true", help="stop at the first bad scan instead of skipping it")
+    _add_landmarks(p)
     _add_scale(p)
     _add_registration_options(p)
     p.set_defaults(run=_run_build)
@@ -496,7 +501,7 @@ def _run_build(args) -> int:
     result = build_model(
         args.input_dir, args.out, reference=args.reference, n_points=args.points, n_modes=args.modes,
         n_jobs=args.jobs, strict=args.strict, config=_registration_config(args), scaling=args.scaling,
-        progress=_stage_progress, scale=args.scale,
+        progress=_stage_progress, scale=args.scale, landmarks=args.landmarks,
     )
     _print_build(result)
     return 0

@@ -520,6 +520,7 @@ def build_model(
     scaling: bool = False,
     progress: Callable[[int, str], Progress] | None = None,
     scale: float = 1.0,
+    landmarks=None,
 ) -> BuildResult:
     """Build a statistical shape model from a folder of scans (paper section 2.2.3).
 
@@ -573,6 +574,13 @@ def build_model(
     scale : float, default: 1.0
         Multiplies every scan's coordinates on reading, to give mm (1000 for
         scans in metres); the scans' files are not changed.
+    landmarks : path or mapping of str to mapping of str to (3,) array_like, optional
+        Named points per scan stem, in each scan's coordinates (a file or
+        folder :func:`hortishape.evaluate.read_landmarks` reads, or the
+        mapping it returns), the reference's among them: in both passes they
+        fix each scan's orientation and are pulled together (see
+        :func:`register_files`); the second pass's reference points are the
+        mean's vertices nearest the first reference's.
 
     Returns
     -------
@@ -606,25 +614,32 @@ def build_model(
         ref_path = Path(reference)
     ref_scan = read_scan(ref_path, scale=scale)
     cfg = config if config is not None else RegistrationConfig()
+    marks = _read_marks(landmarks)
+    if marks is not None and ref_path.stem not in marks:
+        raise HortishapeError(f"{landmarks}: no landmarks for the reference {ref_path.stem}")
+    ref_marks = None if marks is None else {n: np.asarray(p, dtype=np.float64) * scale
+                                            for n, p in marks[ref_path.stem].items()}
 
-    def run_pass(template: Template, folder: Path, desc: str, paths: list[Path], starts=None) -> list[InstanceResult]:
+    def run_pass(template: Template, folder: Path, desc: str, paths: list[Path], starts=None,
+                 reference_landmarks=None) -> list[InstanceResult]:
         results = register_files(template, paths, folder, config=cfg, n_jobs=n_jobs, strict=strict,
                                  progress=_stage(progress, len(paths), desc), initial_transforms=starts,
-                                 scale=scale)
+                                 scale=scale, landmarks=marks, reference_landmarks=reference_landmarks)
         for r in results:
             if not r.ok:
                 skipped.append((r.source, r.error))
         return results
 
     template = prepare_reference(ref_scan.mesh, n_points)
-    first = run_pass(template, out / "work" / "first-pass", "registration 1/2", usable)
+    first = run_pass(template, out / "work" / "first-pass", "registration 1/2", usable, reference_landmarks=ref_marks)
     good = [Path(r.source) for r in first if r.ok]
     _need_three(good, input_dir)
     first_files = {p: out / "work" / "first-pass" / f"{p.stem}.ply" for p in good}
     rechecked = _orientation_consensus(
         first_files, out / "work", lambda paths, folder, c: register_files(
             template, paths, folder, config=c, n_jobs=n_jobs,
-            progress=_stage(progress, len(paths), "orientation check"), scale=scale),
+            progress=_stage(progress, len(paths), "orientation check"), scale=scale,
+            landmarks=marks, reference_landmarks=ref_marks),
         cfg, scaling=scaling,
     )
 
@@ -638,7 +653,14 @@ def build_model(
     # orientation again (a mean is rounder than any one scan, and harder to
     # orient).
     starts = [np.linalg.inv(t) for t in gpa1.transforms]
-    second = run_pass(template2, out / "registered", "registration 2/2", good, starts)
+    mean_marks = None
+    if ref_marks is not None:  # the mean's vertices that the first reference's marks were nearest
+        from scipy.spatial import cKDTree
+
+        nearest = cKDTree(template.mesh.vertices).query(np.array(list(ref_marks.values())))[1]
+        mean_marks = {n: template2.mesh.vertices[i] for n, i in zip(ref_marks, nearest)}
+    second = run_pass(template2, out / "registered", "registration 2/2", good, starts,
+                      reference_landmarks=mean_marks)
     good = [Path(r.source) for r in second if r.ok]
     _need_three(good, input_dir)
 
@@ -758,6 +780,15 @@ def _orientation_consensus(files: dict, work: Path, register_paths, cfg: Registr
                 rec["kept"] = "runner-up"
         records.append(rec)
     return records
+
+
+def _read_marks(landmarks) -> dict | None:
+    """Landmarks per scan stem from a mapping, a file or a folder (see :func:`hortishape.evaluate.read_landmarks`)."""
+    if landmarks is None or isinstance(landmarks, Mapping):
+        return None if landmarks is None else dict(landmarks)
+    from .evaluate import read_landmarks
+
+    return read_landmarks(landmarks)
 
 
 def _number(value) -> float:
