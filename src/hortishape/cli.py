@@ -380,21 +380,14 @@ def _print_results(results) -> int:
 
 
 def _run_register(args) -> int:
-    from .pipeline import register_files
+    from .pipeline import read_reference_landmarks, register_files
     from .register import prepare_reference
     from .units import read_scan
 
     config = _registration_config(args)
     start = time.perf_counter()
     reference = read_scan(args.reference, scale=args.scale).mesh
-    marks, reference_marks = None, None
-    if args.landmarks is not None:
-        from .evaluate import read_landmarks
-
-        marks = read_landmarks(args.landmarks)
-        if args.reference.stem not in marks:
-            raise HortishapeError(f"{args.landmarks}: no landmarks for the reference {args.reference.stem}")
-        reference_marks = {n: p * args.scale for n, p in marks[args.reference.stem].items()}
+    marks, reference_marks = read_reference_landmarks(args.landmarks, args.reference, scale=args.scale)
     print(f"preparing the reference {args.reference} ({reference.n_vertices:,} vertices"
           + ("" if args.no_resample else f" -> {args.points:,}") + ")", file=sys.stderr)
     template = prepare_reference(reference, None if args.no_resample else args.points)

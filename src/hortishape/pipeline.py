@@ -429,11 +429,12 @@ def check_scans(paths: Sequence, *, max_size_ratio: float = 5.0, scale: float = 
     for p in paths:
         p = Path(p)
         try:
-            mesh = read_scan(p, scale=scale).mesh
+            scan = read_scan(p, scale=scale)
+            mesh = scan.mesh
             check_closed_surface(mesh, name=str(p), allow_degenerate=True)
             size = abs(signed_volume(mesh.vertices, mesh.faces)) ** (1.0 / 3.0)
             checks.append(ScanCheck(str(p), True, n_vertices=mesh.n_vertices, size=size,
-                                    extent=float(np.ptp(mesh.vertices, axis=0).max())))
+                                    extent=scan.units.extent_mm))
         except HortishapeError as exc:
             checks.append(ScanCheck(str(p), False, error=str(exc)))
     sizes = [c.size for c in checks if c.ok]
@@ -614,11 +615,7 @@ def build_model(
         ref_path = Path(reference)
     ref_scan = read_scan(ref_path, scale=scale)
     cfg = config if config is not None else RegistrationConfig()
-    marks = _read_marks(landmarks)
-    if marks is not None and ref_path.stem not in marks:
-        raise HortishapeError(f"{landmarks}: no landmarks for the reference {ref_path.stem}")
-    ref_marks = None if marks is None else {n: np.asarray(p, dtype=np.float64) * scale
-                                            for n, p in marks[ref_path.stem].items()}
+    marks, ref_marks = read_reference_landmarks(landmarks, ref_path, scale=scale)
 
     def run_pass(template: Template, folder: Path, desc: str, paths: list[Path], starts=None,
                  reference_landmarks=None) -> list[InstanceResult]:
@@ -782,13 +779,51 @@ def _orientation_consensus(files: dict, work: Path, register_paths, cfg: Registr
     return records
 
 
-def _read_marks(landmarks) -> dict | None:
-    """Landmarks per scan stem from a mapping, a file or a folder (see :func:`hortishape.evaluate.read_landmarks`)."""
-    if landmarks is None or isinstance(landmarks, Mapping):
-        return None if landmarks is None else dict(landmarks)
-    from .evaluate import read_landmarks
+def read_reference_landmarks(landmarks, reference, *, scale: float = 1.0) -> tuple[dict | None, dict | None]:
+    """Landmarks per scan stem, and the reference's among them in mm.
 
-    return read_landmarks(landmarks)
+    Parameters
+    ----------
+    landmarks : path or mapping of str to mapping of str to (3,) array_like, or None
+        A file or folder :func:`hortishape.evaluate.read_landmarks` reads, or
+        the mapping it returns; points in each scan's file units.
+    reference : path
+        The reference scan: its stem names its points.
+    scale : float, default: 1.0
+        Converts the file units to mm (the reference's points are returned
+        scaled; the scans' are scaled by :func:`register_files`).
+
+    Returns
+    -------
+    marks : dict or None
+        Stem -> name -> point, as given (None without landmarks).
+    reference_marks : dict or None
+        Name -> point of the reference, mm.
+
+    Raises
+    ------
+    HortishapeError
+        If the landmarks name no point on the reference.
+
+    Examples
+    --------
+    >>> marks = {"apple_000": {"stalk": [0.0, 0.0, 0.04]}, "apple_001": {"stalk": [0.0, 0.001, 0.041]}}
+    >>> _, ref = read_reference_landmarks(marks, "scans/apple_000.ply", scale=1000)
+    >>> ref["stalk"].tolist()
+    [0.0, 0.0, 40.0]
+    """
+    if landmarks is None:
+        return None, None
+    if isinstance(landmarks, Mapping):
+        marks = dict(landmarks)
+    else:
+        from .evaluate import read_landmarks
+
+        marks = read_landmarks(landmarks)
+    stem = Path(reference).stem
+    if stem not in marks:
+        raise HortishapeError(f"{landmarks}: no landmarks for the reference {stem}")
+    return marks, {n: np.asarray(p, dtype=np.float64) * scale for n, p in marks[stem].items()}
 
 
 def _number(value) -> float:
