@@ -99,7 +99,7 @@ def test_initial_transforms_skip_the_search_and_are_part_of_the_fingerprint(scan
     targets = [scans / "apple_001.ply"]
     searched = register_files(template, targets, tmp_path / "a", config=CONFIG, n_jobs=1)
     log = json.loads((tmp_path / "a" / "apple_001.json").read_text())
-    assert len(log["orientation_scores"]) == 24
+    assert len(log["orientation_scores"]) >= 4
     start = np.asarray(log["transform"])
     started = register_files(template, targets, tmp_path / "b", config=CONFIG, n_jobs=1, initial_transforms=[start])
     log_b = json.loads((tmp_path / "b" / "apple_001.json").read_text())
@@ -126,7 +126,7 @@ def test_orientation_rank_starts_from_the_runner_up(scans, template, tmp_path):
     r0, r1 = (json.loads((tmp_path / d / "apple_001.json").read_text()) for d in ("r0", "r1"))
     # candidates out of the search's final have no score (null)
     scores = np.asarray(r0["orientation_scores"], dtype=np.float64)
-    assert np.isfinite(scores).sum() == 3
+    assert 3 <= np.isfinite(scores).sum() <= 4
     order = np.argsort(scores, kind="stable")
     assert r0["summary"]["orientation_index"] == order[0]
     assert r1["summary"]["orientation_index"] == order[1]
@@ -135,9 +135,10 @@ def test_orientation_rank_starts_from_the_runner_up(scans, template, tmp_path):
 def test_orientation_consensus_keeps_the_registration_that_agrees_with_the_others(scans, template, tmp_path):
     # five registrations of apples, one of them deliberately started upside
     # down (an outlier): the check registers that one again from the search's
-    # runner-up and keeps whichever lies nearer the others' mean
+    # runner-up and turned end over end, and keeps whichever lies nearest the
+    # others' mean
     from hortishape.align import rotation_about, rigid_transform
-    from hortishape.pipeline import _orientation_consensus
+    from hortishape.pipeline import _end_over_end, _orientation_consensus
 
     extra = tmp_path / "more"
     synth.write_population("apple", 6, extra, random_state=4, pose="upright", n_vertices=12000, n_jobs=1)
@@ -155,25 +156,29 @@ def test_orientation_consensus_keeps_the_registration_that_agrees_with_the_other
     for p in targets:
         log_path = first / f"{p.stem}.json"
         log = json.loads(log_path.read_text())
-        log["orientation_scores"] = [1.0, 1.01 if p == bad else 1.5] + [2.0] * 22
+        log["orientation_scores"] = [1.0, 1.01 if p == bad else 1.5] + [2.0] * 6
         log_path.write_text(json.dumps(log))
     files = {p: first / f"{p.stem}.ply" for p in targets}
     calls = []
 
-    def again(paths, folder, cfg):
-        calls.append([p.stem for p in paths])
-        return register_files(template, paths, folder, config=cfg, n_jobs=1)
+    def again(paths, folder, cfg, starts=None):
+        calls.append(([p.stem for p in paths], folder.name))
+        return register_files(template, paths, folder, config=cfg, n_jobs=1, initial_transforms=starts)
 
-    records = _orientation_consensus(files, tmp_path, again, CONFIG)
-    # other suspects may be checked in the same batch (here, with the affine
-    # orientation search, apple_002 as a mild outlier: 2.6 mm from the others'
-    # mean, its runner-up 2.7 mm, so its first registration stays)
-    assert any(bad.stem in c for c in calls)
+    records = _orientation_consensus(files, tmp_path, again, CONFIG, flip=_end_over_end(template))
+    assert {folder for names, folder in calls if bad.stem in names} == {"first-pass-rank1", "first-pass-flipped"}
     for r in records:
-        assert r["kept"] == ("runner-up" if r["runner_up_distance_mm"] < r["distance_mm"] else "first")
+        tried = {"first": r["distance_mm"], "runner-up": r["runner_up_distance_mm"], "flipped": r["flipped_distance_mm"]}
+        assert r["kept"] == min((d, k) for k, d in tried.items() if d is not None)[1]
     rec = {r["name"]: r for r in records}[bad.stem]
-    assert rec["kept"] == "runner-up" and rec["runner_up_distance_mm"] < rec["distance_mm"]
-    assert files[bad] == tmp_path / "first-pass-rank1" / f"{bad.stem}.ply"
+    assert rec["kept"] != "first" and min(rec["runner_up_distance_mm"], rec["flipped_distance_mm"]) < rec["distance_mm"]
+    folder = {"runner-up": "first-pass-rank1", "flipped": "first-pass-flipped"}[rec["kept"]]
+    assert files[bad] == tmp_path / folder / f"{bad.stem}.ply"
+    # the kept surface is right side up: its stalk-tip vertex near the scan's stalk tip
+    truth = synth.read_truth(bad)
+    kept = read_mesh(files[bad]).vertices
+    ref_tip = np.argmin(np.linalg.norm(template.mesh.vertices - synth.read_truth(extra / "apple_000.ply")["landmarks"]["stalk_tip"], axis=1))
+    assert np.linalg.norm(kept[ref_tip] - truth["landmarks"]["stalk_tip"]) < 15.0
 
 
 def test_cli_register_with_landmarks(scans, tmp_path, capsys):

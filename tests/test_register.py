@@ -87,7 +87,7 @@ def test_known_rigid_motion_is_recovered(template, dense):
     # the search's best three were judged again on the coarse level; the
     # others keep no score, and rank 1 starts from the runner-up of that final
     finite = np.flatnonzero(np.isfinite(reg.orientation_scores))
-    assert len(reg.orientation_scores) == 24 and len(finite) == 3
+    assert len(reg.orientation_scores) >= 4 and len(finite) == 3
     assert reg.orientation_index == finite[np.argmin(reg.orientation_scores[finite])]
     runner_up = register(template, target, RegistrationConfig(orientation_rank=1, max_iterations=30, n_iterations=3))
     assert runner_up.orientation_index == finite[np.argsort(reg.orientation_scores[finite])[1]]
@@ -327,7 +327,8 @@ def test_twist_candidates_keep_a_right_answer(template, dense):
     t = rigid_transform(r, [3.0, 1.0, -2.0])
     target = Mesh(apply_transform(t, dense.vertices), dense.faces)
     reg = register(template, target, RegistrationConfig(twists=4))
-    assert len(reg.orientation_scores) == 24 + 3  # the winner's 3 other quarter turns
+    plain = register(template, target)
+    assert len(reg.orientation_scores) == len(plain.orientation_scores) + 3  # the winner's 3 other quarter turns
     np.testing.assert_allclose(reg.transform[:3, :3], r, atol=2e-3)
 
 
@@ -594,3 +595,64 @@ def test_landmarks_fix_the_orientation_and_are_pulled_together():
         register(template, tgt.mesh, cfg, reference_landmarks=ref_lm)
     with pytest.raises(ValueError, match="no landmark is named on both"):
         register(template, tgt.mesh, cfg, reference_landmarks=ref_lm, target_landmarks={"tip": [0, 0, 0]})
+
+
+# --------------------------------------------------------------------------
+# real scans (tests/data/ycb, poles marked by hand; never used for tuning)
+# --------------------------------------------------------------------------
+
+
+def _turned_copy(mesh, seed):
+    r = trimesh.transformations.random_rotation_matrix(np.random.default_rng(seed).random(3))[:3, :3]
+    c = mesh.vertices.mean(axis=0)
+    return Mesh((mesh.vertices - c) @ r.T + c, mesh.faces), lambda p: (p - c) @ r.T + c
+
+
+def _carried_poles(ycb, a, b, seed, n_points=8000):
+    """Register real scan ``a`` onto ``b`` turned at random; a's marked poles as carried, b's marks.
+
+    The carried poles are the registered positions of the reference vertices
+    nearest a's marks; with ``a == b`` the marks are those vertices, turned.
+    """
+    mesh_a, stalk_a, blossom_a = ycb[a]
+    mesh_b, stalk_b, blossom_b = ycb[b]
+    template = prepare_reference(mesh_a, n_points)
+    v = template.mesh.vertices
+    js, jb = (int(np.argmin(np.linalg.norm(v - p, axis=1))) for p in (stalk_a, blossom_a))
+    turned, move = _turned_copy(mesh_b, seed)
+    if a == b:
+        stalk_b, blossom_b = v[js], v[jb]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        reg = register(template, turned)
+    return reg, reg.vertices[js], reg.vertices[jb], move(stalk_b), move(blossom_b)
+
+
+def _axis_error(s, b, s_true, b_true):
+    a, t = s - b, s_true - b_true
+    return np.degrees(np.arccos(np.clip(a @ t / np.linalg.norm(a) / np.linalg.norm(t), -1.0, 1.0)))
+
+
+@pytest.mark.parametrize("a, b", [("017_orange", "018_plum"), ("018_plum", "017_orange"), ("016_pear", "017_orange")])
+def test_real_fruit_poles_land_on_poles(ycb, a, b):
+    """One real fruit onto another of another kind in a random pose: the issue's 12 mm and 25 degrees."""
+    reg, s, bl, s_true, b_true = _carried_poles(ycb, a, b, seed=1)
+    assert reg.orientation_ends == "cavity"
+    assert np.linalg.norm(s - s_true) < 12.0 and np.linalg.norm(bl - b_true) < 12.0
+    assert _axis_error(s, bl, s_true, b_true) < 25.0
+
+
+def test_real_fruit_with_a_stalk_cavity_never_come_out_upside_down(ycb):
+    """Every ordered pair of the real scans whose cavity end is told apart (peach, plum, orange, pear)."""
+    told = ["015_peach", "018_plum", "017_orange", "016_pear"]
+    for i, a in enumerate(told):
+        for b in told:
+            if a != b:
+                _, s, bl, s_true, b_true = _carried_poles(ycb, a, b, seed=i, n_points=4000)
+                assert _axis_error(s, bl, s_true, b_true) < 60.0, (a, b)
+
+
+def test_real_fruit_onto_a_turned_copy_of_itself(ycb):
+    for seed, name in enumerate(["013_apple", "014_lemon"]):
+        _, s, bl, s_true, b_true = _carried_poles(ycb, name, name, seed=seed, n_points=4000)
+        assert np.linalg.norm(s - s_true) < 1.0 and np.linalg.norm(bl - b_true) < 1.0

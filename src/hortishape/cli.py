@@ -294,9 +294,11 @@ def _add_registration_options(p) -> None:
                         "filter, which can leave an overshooting stalk tip in the air)")
     g.add_argument("--tolerance", type=float, default=1e-3,
                    help="convergence when |d_t - d_(t-1)| / d_t falls below this")
-    g.add_argument("--orientation", choices=["search", "pca", "none"], default="search",
-                   help="initial alignment: try all principal-axis rotations and keep the best after a "
-                        "short elastic fit (search), the paper's eq. 7 alone (pca), or none")
+    g.add_argument("--orientation", choices=["axis", "search", "pca", "none"], default="axis",
+                   help="initial alignment: put the reference's axis of revolution on the scan's, cavity "
+                        "(stalk) end on cavity end, and keep the best turn about it after a short elastic "
+                        "fit (axis); try all 24 principal-axis rotations so (search); the paper's eq. 7 "
+                        "alone (pca); or none")
     g.add_argument("--warp", choices=["auto", "affine", "taper", "quadratic", "none"], default="auto",
                    help="the initializing global step before the elastic ones: affine (the paper's), "
                         "taper (affine plus a widening or narrowing along the fruit's axis), quadratic "

@@ -26,6 +26,7 @@ from typing import Callable, Iterable, Mapping, Sequence
 import numpy as np
 
 from ._batch import raise_failed, run_jobs
+from .align import rigid_transform, rotation_about
 from .errors import ConvergenceWarning, HortishapeError
 from .io import atomic_path, is_mesh_file, mesh_formats, read_mesh, write_mesh
 from .mesh import Mesh
@@ -633,11 +634,11 @@ def build_model(
     _need_three(good, input_dir)
     first_files = {p: out / "work" / "first-pass" / f"{p.stem}.ply" for p in good}
     rechecked = _orientation_consensus(
-        first_files, out / "work", lambda paths, folder, c: register_files(
-            template, paths, folder, config=c, n_jobs=n_jobs,
+        first_files, out / "work", lambda paths, folder, c, starts=None: register_files(
+            template, paths, folder, config=c, n_jobs=n_jobs, initial_transforms=starts,
             progress=_stage(progress, len(paths), "orientation check"), scale=scale,
             landmarks=marks, reference_landmarks=ref_marks),
-        cfg, scaling=scaling,
+        cfg, scaling=scaling, flip=_end_over_end(template),
     )
 
     # the second pass: the mean of the first pass as an unbiased template
@@ -716,26 +717,38 @@ CLOSE_CALL = 0.05
 OUTLIER_SD = 3.0
 
 
+def _end_over_end(template: Template) -> np.ndarray:
+    """The reference turned end over end: half a turn about its widest direction across its axis, through its centre."""
+    ax = template.axis()
+    r = rotation_about(ax.across, np.pi)
+    return rigid_transform(r, ax.centre - r @ ax.centre)
+
+
 def _orientation_consensus(files: dict, work: Path, register_paths, cfg: RegistrationConfig, *,
-                           scaling: bool = False) -> list[dict]:
+                           scaling: bool = False, flip: np.ndarray | None = None) -> list[dict]:
     """Let the population overrule a close or outlying orientation choice (in place on ``files``).
 
     A single registration has only the scan to judge its initial orientation
     by, and on a near-symmetric fruit (a round apple, a pepper's lobes) the
-    best and second-best candidates can score alike. The population knows
-    better: a surface registered in the wrong orientation stands out from
-    the others once all are Procrustes-aligned. Suspects (a close call in
-    the search, or an outlier) are registered again from the runner-up
-    candidate (``orientation_rank=1``, into ``work/first-pass-rank1``), and
-    whichever result lies closer to the mean of the other surfaces is kept.
+    best and second-best candidates can score alike; between two fruit that
+    differ, a stiff fit may even prefer the reference upside down. The
+    population knows better: a surface registered in the wrong orientation
+    stands out from the others once all are Procrustes-aligned. Suspects (a
+    close call in the search, or an outlier) are registered again from two
+    other orientations: the search's runner-up (``orientation_rank=1``, into
+    ``work/first-pass-rank1``) and, given ``flip`` (a reference -> reference
+    transform turning it end over end), the first pass's placement turned
+    end over end (into ``work/first-pass-flipped``; the runner-up is often
+    a neighbouring turn of the same end). Whichever of the three lies
+    closest to the mean of the other surfaces is kept.
 
-    Returns one record per suspect: name, why, both distances (mm RMS) and
-    which was kept.
+    Returns one record per suspect: name, why, the distances (mm RMS) and
+    which was kept (``"first"``, ``"runner-up"`` or ``"flipped"``).
     """
     from .procrustes import generalized_procrustes, procrustes_align
 
     paths = list(files)
-    if len(paths) < 4 or cfg.orientation != "search":
+    if len(paths) < 4 or cfg.orientation not in ("axis", "search"):
         return []
     shapes = np.stack([read_mesh(files[p]).vertices for p in paths])
     gpa = generalized_procrustes(shapes, scaling=scaling)
@@ -750,31 +763,44 @@ def _orientation_consensus(files: dict, work: Path, register_paths, cfg: Registr
     med = float(np.median(dist))
     limit = med + OUTLIER_SD * 1.4826 * float(np.median(np.abs(dist - med)))
     suspects = {}
+    logs = {}
     for i, p in enumerate(paths):
         try:
-            log = json.loads(files[p].with_suffix(".json").read_text())
+            logs[i] = json.loads(files[p].with_suffix(".json").read_text())
         except (OSError, ValueError):
-            log = {}
-        scores = np.sort(np.asarray(log.get("orientation_scores") or [], dtype=np.float64))
+            logs[i] = {}
+        scores = np.sort(np.asarray(logs[i].get("orientation_scores") or [], dtype=np.float64))
         close = len(scores) > 1 and scores[1] - scores[0] <= CLOSE_CALL * scores[0]
         if close or dist[i] > limit:
             suspects[i] = "close call" if close else "outlier"
     if not suspects:
         return []
-    folder = work / "first-pass-rank1"
     idx = sorted(suspects)
-    results = register_paths([paths[i] for i in idx], folder, replace(cfg, orientation_rank=1))
+    tries = {"runner-up": (work / "first-pass-rank1",
+                           register_paths([paths[i] for i in idx], work / "first-pass-rank1",
+                                          replace(cfg, orientation_rank=1)))}
+    flippable = [i for i in idx if flip is not None and "transform" in logs[i]]
+    if flippable:
+        starts = [np.asarray(logs[i]["transform"], dtype=np.float64) @ flip for i in flippable]
+        flipped = register_paths([paths[i] for i in flippable], work / "first-pass-flipped", cfg, starts)
+        by_index = dict(zip(flippable, flipped))
+        tries["flipped"] = (work / "first-pass-flipped", [by_index.get(i) for i in idx])
     records = []
-    for i, res in zip(idx, results):
-        rec = {"name": paths[i].stem, "why": suspects[i], "distance_mm": dist[i], "runner_up_distance_mm": None,
-               "kept": "first"}
-        if res.ok:
+    for k, i in enumerate(idx):
+        rec = {"name": paths[i].stem, "why": suspects[i], "distance_mm": dist[i], "kept": "first"}
+        best = dist[i]
+        for label, (folder, results) in tries.items():
+            res = results[k]
+            key = label.replace("-", "_") + "_distance_mm"
+            rec[key] = None
+            if res is None or not res.ok:
+                continue
             alt = folder / f"{paths[i].stem}.ply"
-            d_alt = distance(read_mesh(alt).vertices, i)
-            rec["runner_up_distance_mm"] = d_alt
-            if d_alt < dist[i]:
+            rec[key] = distance(read_mesh(alt).vertices, i)
+            if rec[key] < best:
+                best = rec[key]
                 files[paths[i]] = alt
-                rec["kept"] = "runner-up"
+                rec["kept"] = label
         records.append(rec)
     return records
 

@@ -103,6 +103,9 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from .align import (
+    FruitAxis,
+    axis_alignments,
+    fruit_axis,
     apply_transform,
     candidate_alignments,
     principal_axes,
@@ -280,12 +283,35 @@ class RegistrationConfig:
         Convergence: ``|d_t - d_(t-1)| / d_t < tolerance`` at ``beta_end``.
     max_iterations : int, default: 50
         Cap on the total number of iterations (schedule + convergence).
-    orientation : {"search", "pca", "none"}, default: "search"
-        Initial alignment. ``"search"``: all 24 principal-axis rotations (or
-        the hint's twists), each judged by a short coarse elastic
-        registration. ``"pca"``: the paper's eq. 7 with deterministic axis
-        signs. ``"none"``: the reference is used where it is (or where
-        ``initial_transform`` puts it).
+    orientation : {"axis", "search", "pca", "none"}, default: "axis"
+        Initial alignment. ``"axis"``: the reference's axis of near
+        revolution put on the target's (:func:`hortishape.align.fruit_axis`),
+        cavity end on cavity end when both scans' ends differ by at least
+        ``end_contrast`` (else both ways), turned about it in ``axis_turns``
+        steps, each candidate judged by a short coarse elastic
+        registration. ``"search"``: the same judgement of all 24
+        principal-axis rotations (the orientation of hortishape 0.x; on
+        real round fruit the principal axes point anywhere). With a hint
+        (``up``, landmarks) both search the hint's turns. ``"pca"``: the
+        paper's eq. 7 with deterministic axis signs. ``"none"``: the
+        reference is used where it is (or where ``initial_transform`` puts
+        it). Measured on six real scans (``benchmarks/real_poles.py``, 30
+        ordered pairs of different fruit): see the README.
+    end_contrast : float, default: 0.5
+        ``orientation="axis"`` puts the cavity end on the cavity end, without
+        trying the other way, when :attr:`hortishape.align.FruitAxis.contrast`
+        of both scans is at least this. On the synthetic tuning set (3 each
+        of apples, peppers, pears, zucchini) the contrasts were 0.64-1.0
+        except on two bent zucchini (0.06, 0.25), whose concave side lies in
+        the cones of both ends.
+    axis_turns : int, default: 4
+        Turns about the axis that ``orientation="axis"`` tries, equally
+        spaced from the one that puts the reference's widest direction
+        across the axis on the target's (:func:`hortishape.align.axis_alignments`);
+        the refinement after the search closes the rest. The search's
+        residual tells turns apart poorly: with 12 turns (30 degrees apart)
+        3 of 8 synthetic apples in a random pose ended 70-134 degrees turned
+        (``benchmarks/registration.py --n 9``).
     search_iterations : int, default: 6
         Iterations of each orientation candidate's coarse registration.
     search_finalists : int, default: 3
@@ -442,7 +468,9 @@ class RegistrationConfig:
     check_crossings: bool = True
     tolerance: float = 1e-3
     max_iterations: int = 50
-    orientation: str = "search"
+    orientation: str = "axis"
+    end_contrast: float = 0.5
+    axis_turns: int = 4
     search_iterations: int = 6
     search_finalists: int = 3
     orientation_rank: int = 0
@@ -472,8 +500,12 @@ class RegistrationConfig:
             raise ValueError("distance_floor must be >= 0")
         if self.max_iterations < self.n_iterations:
             raise ValueError("max_iterations must be at least n_iterations")
-        if self.orientation not in ("search", "pca", "none"):
-            raise ValueError(f"orientation must be 'search', 'pca' or 'none', got {self.orientation!r}")
+        if self.orientation not in ("axis", "search", "pca", "none"):
+            raise ValueError(f"orientation must be 'axis', 'search', 'pca' or 'none', got {self.orientation!r}")
+        if not 0 <= self.end_contrast <= 1:
+            raise ValueError(f"end_contrast must lie in [0, 1], got {self.end_contrast}")
+        if self.axis_turns < 1:
+            raise ValueError(f"axis_turns must be >= 1, got {self.axis_turns}")
         if self.affine not in ("stiff", "all", "none"):
             raise ValueError(f"affine must be 'stiff', 'all' or 'none', got {self.affine!r}")
         if self.warp not in ("auto", "none", "affine", "taper", "quadratic"):
@@ -562,12 +594,12 @@ class Registration:
         Whether the convergence test passed before ``max_iterations``.
     orientation_scores : (k,) float64 ndarray
         Score of each initial-alignment candidate, the twist candidates
-        after the principal-axis ones (lower is better; empty unless
-        ``orientation="search"``): the coarse-level score of the finalists
+        after the axis or principal-axis ones (lower is better; empty
+        without a search): the coarse-level score of the finalists
         (``search_finalists``), ``inf`` for the others. With an axis hint,
         only the candidates that keep it.
     orientation_index : int
-        The candidate chosen (-1 unless ``orientation="search"``).
+        The candidate chosen (-1 without a search).
     orientation_confidence : float
         The margin of the chosen orientation over the best distinct one (the
         best candidate turned more than ``ALTERNATIVE_TURN`` degrees from
@@ -575,6 +607,12 @@ class Registration:
         level: 0 is a tie, towards 1 the search was sure. Negative only when
         ``orientation_rank`` chose a worse candidate; ``nan`` without a
         search.
+    orientation_ends : str
+        How the ends were matched: ``"cavity"`` (``orientation="axis"``, both
+        scans' cavity ends told apart: the other way was not tried),
+        ``"searched"`` (both ways judged by the search), ``"pca"``, or ``""``
+        (no search: ``initial_transform``, three landmarks or
+        ``orientation="none"``).
     seconds : float
         Total wall time.
     """
@@ -590,6 +628,7 @@ class Registration:
     affine: np.ndarray = field(default_factory=lambda: np.eye(4))
     placed: np.ndarray | None = None
     orientation_confidence: float = float("nan")
+    orientation_ends: str = ""
 
     @property
     def mesh(self) -> Mesh:
@@ -707,6 +746,12 @@ class Template:
             mesh = {"fine": self.mesh, "coarse": self.coarse, "search": self.search}[name]
             self._levels[name] = _Level.build(mesh)
         return self._levels[name]
+
+    def axis(self) -> FruitAxis:
+        """The reference's axis of near revolution and cavity end (:func:`hortishape.align.fruit_axis`), cached."""
+        if "axis" not in self._levels:
+            self._levels["axis"] = fruit_axis(self.mesh.vertices, self.mesh.faces)
+        return self._levels["axis"]
 
     def prolongation(self) -> sp.csr_matrix:
         """``(n, n_coarse)`` barycentric interpolation from the coarse to the full mesh."""
@@ -1083,6 +1128,29 @@ def _coarse_to_fine(template: Template, coarse_state: _State, base_c: np.ndarray
         disp, template.coarse.faces, template.coarse_face_index, template.coarse_barycentric
     )
     return apply_transform(t, base_f) + disp_f
+
+
+def _target_axis(target: TargetSurface) -> FruitAxis:
+    """The target's :func:`hortishape.align.fruit_axis`."""
+    return fruit_axis(target.mesh.vertices, target.mesh.faces)
+
+
+def _axis_candidates(ref: FruitAxis, tgt: FruitAxis, cfg: RegistrationConfig) -> tuple[np.ndarray, str]:
+    """The candidates of ``orientation="axis"`` and how their ends were matched (``"cavity"`` or ``"searched"``).
+
+    Each scan's axis, and its second hypothesis if it has one (see
+    :attr:`hortishape.align.FruitAxis.alternative`) against the other's axis:
+    cavity end on cavity end when both ends are told apart by
+    ``end_contrast``, else both ways.
+    """
+    pairs = [(ref, tgt)]
+    if tgt.alternative is not None:
+        pairs.append((ref, tgt.alternative))
+    if ref.alternative is not None:
+        pairs.append((ref.alternative, tgt))
+    both = [min(a.contrast, b.contrast) < cfg.end_contrast for a, b in pairs]
+    cands = np.concatenate([axis_alignments(a, b, n_turns=cfg.axis_turns, both_ends=e) for (a, b), e in zip(pairs, both)])
+    return cands, "searched" if any(both) else "cavity"
 
 
 def _search_orientation(
@@ -1629,6 +1697,7 @@ def register(
         reference_up = target_up = cfg.up
     scores = np.zeros(0)
     chosen = -1
+    ends = ""
     alternative = None
     confidence = float("nan")
     if initial_transform is not None:
@@ -1636,15 +1705,20 @@ def register(
     elif cfg.orientation == "none":
         t0 = np.eye(4)
     else:
-        cands = candidate_alignments(
-            template.mesh.vertices,
-            tgt.mesh.vertices,
-            source_faces=template.mesh.faces,
-            target_faces=tgt.mesh.faces,
-        )
         hint = _up_hint(reference_up, target_up)
+        if cfg.orientation == "axis":
+            cands, ends = _axis_candidates(template.axis(), _target_axis(tgt), cfg)
+        else:
+            ends = "searched"
+            cands = candidate_alignments(
+                template.mesh.vertices,
+                tgt.mesh.vertices,
+                source_faces=template.mesh.faces,
+                target_faces=tgt.mesh.faces,
+            )
         if cfg.orientation == "pca":
             t0 = cands[0] if hint is None else _hint_turns(template, tgt, hint)[0]
+            ends = "pca"
         else:
             scores, transforms = _search_orientation(template, tgt, cands, cfg)
             if hint is not None:
@@ -1655,7 +1729,8 @@ def register(
                 # well when the two cross-axis variances are nearly equal)
                 best = int(np.argmin(scores))
                 base = _rigid_part(cands[best], template.mesh.vertices)
-                axis = base[:3, :3] @ _symmetry_axis(template.mesh.vertices)
+                own = template.axis().direction if cfg.orientation == "axis" else _symmetry_axis(template.mesh.vertices)
+                axis = base[:3, :3] @ own
                 centre = tgt.mesh.vertices.mean(axis=0)
                 tw = _twist_candidates(cands[best], axis, centre, cfg.twists)[1:]
                 tw_scores, tw_transforms = _search_orientation(template, tgt, tw, cfg)
@@ -1806,6 +1881,7 @@ def register(
             affine=total,
             placed=placed,
             orientation_confidence=confidence,
+            orientation_ends=ends,
         )
 
     reg = run(t0, chosen)
