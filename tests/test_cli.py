@@ -48,6 +48,15 @@ def test_synth_writes_meshes_with_ground_truth(tmp_path, capsys):
     assert not [p for p in out.iterdir() if p.name.startswith(".")]
 
 
+def test_synth_family_and_its_error(tmp_path, capsys):
+    assert main(["synth", "apple", "1", str(tmp_path / "a"), "--seed", "5", "--vertices", "4000",
+                 "--family", "stalkless", "--jobs", "1"]) == 0
+    truth = json.loads((tmp_path / "a" / "apple_000.truth.json").read_text())
+    assert set(truth["landmarks"]) == {"stalk_tip", "bottom"}
+    assert main(["synth", "apple", "1", str(tmp_path / "b"), "--family", "five-lobed"]) != 0
+    assert "apple has no family 'five-lobed'" in capsys.readouterr().err
+
+
 def test_synth_is_deterministic(tmp_path):
     for name in ("a", "b"):
         assert main(["synth", "apple", "1", str(tmp_path / name), "--seed", "5", "--vertices", "5000"]) == 0

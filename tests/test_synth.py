@@ -219,3 +219,49 @@ def test_the_population_that_lost_a_stalk_piece_is_whole():
 
     for inst in synth.make_population("apple", 5, random_state=4, n_vertices=5000):
         assert component_labels(inst.mesh.faces, inst.mesh.n_vertices)[0] == 1
+
+
+# --------------------------------------------------------------------------
+# held-out shape families
+# --------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("product", ["apple", "pepper"])
+def test_every_family_is_one_closed_surface_with_its_landmarks_on_it(product):
+    for family in synth.PRODUCTS[product].families:
+        inst = synth.make_instance(product, random_state=11, n_vertices=4000, family=family)
+        mesh = trimesh.Trimesh(inst.mesh.vertices, inst.mesh.faces, process=False)
+        assert mesh.is_watertight and len(mesh.split(only_watertight=False)) == 1, family
+        for name, point in inst.landmarks.items():
+            d = np.linalg.norm(inst.mesh.vertices - point, axis=1).min()
+            assert d < 2.0 * inst.voxel_size, (family, name, d)
+
+
+@pytest.mark.parametrize("seed", [12, 13, 14])
+def test_families_have_what_their_names_say(seed):
+    def make(family):
+        return synth.make_instance("apple", random_state=seed, n_vertices=6000, pose="canonical", family=family)
+
+    standard, stalkless, sunk, tilted = (make(f) for f in ("standard", "stalkless", "sunk", "tilted"))
+    stalk = standard.part_names.index("stalk")
+    assert (standard.parts == stalk).sum() > 20 and (stalkless.parts == stalk).sum() == 0
+    # the stalkless apple's stalk mark is its cavity floor, below the shoulders
+    assert stalkless.landmarks_canonical["stalk_tip"][2] < stalkless.canonical[:, 2].max() - 3.0
+    # a sunk stalk ends below the shoulders around its cavity
+    body = sunk.parts == sunk.part_names.index("body")
+    assert sunk.landmarks_canonical["stalk_tip"][2] < sunk.canonical[body, 2].max()
+    # a tilted stalk leans more than 20 degrees from the axis
+    tip = tilted.landmarks_canonical["stalk_tip"]
+    base = np.array([0.0, 0.0, tilted.canonical[tilted.parts == stalk, 2].min()])
+    lean = np.degrees(np.arccos((tip - base)[2] / np.linalg.norm(tip - base)))
+    assert lean > 20.0
+    # the standard instance is the same whatever families exist
+    again = synth.make_instance("apple", random_state=seed, n_vertices=6000, pose="canonical")
+    np.testing.assert_array_equal(again.mesh.vertices, standard.mesh.vertices)
+
+
+def test_unknown_family_is_refused(tmp_path):
+    with pytest.raises(HortishapeError, match="no family 'lumpy'.*stalkless"):
+        synth.make_instance("apple", family="lumpy")
+    with pytest.raises(HortishapeError, match="no family 'five-lobed'"):
+        synth.write_population("apple", 2, tmp_path, family="five-lobed")

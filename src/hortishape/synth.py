@@ -217,7 +217,7 @@ def _cavity_floor(shape_parts: Callable[[np.ndarray], np.ndarray], z_hi: float, 
     return float(z[np.argmax(inside)])
 
 
-def _apple(rng: np.random.Generator) -> _Canonical:
+def _apple(rng: np.random.Generator, family: str = "standard") -> _Canonical:
     ribs = rng.uniform(0.004, 0.02)
     cheek = rng.uniform(0.02, 0.05)  # the +x cheek is the fuller one
     top_r = rng.uniform(19.0, 24.0)
@@ -225,11 +225,17 @@ def _apple(rng: np.random.Generator) -> _Canonical:
     bot_r = rng.uniform(8.0, 11.0)
     bot_depth = rng.uniform(4.0, 6.5)
 
+    # held-out families: a conical apple narrows to its blossom end; a
+    # five-ribbed one (Red Delicious) has strong ribs and five crown bumps
+    z_bottom, r_bottom = (-26.0, 18.0) if family == "conical" else (-10.0, 31.0)
+    if family == "ribbed":
+        ribs = rng.uniform(0.04, 0.07)
+
     def body(c):
         az = _azimuth(c)
         mod = ribs * np.cos(5 * az) * np.clip((10.0 - c[:, 2]) / 50.0, 0.0, 1.0)
         mod = mod + cheek * np.cos(az) * np.clip((c[:, 2] + 20.0) / 50.0, 0.0, 1.0)
-        d = _round_cone(_revolution(c, mod), (0.0, -10.0), (0.0, 4.0), 31.0, 39.0)
+        d = _round_cone(_revolution(c, mod), (0.0, z_bottom), (0.0, 4.0), r_bottom, 39.0)
         d = _smax(d, -_sphere(c, (0, 0, 43.0 + top_r - top_depth), top_r), 9.0)
         return _smax(d, -_sphere(c, (0, 0, -41.0 - bot_r + bot_depth), bot_r), 4.0)
 
@@ -237,15 +243,26 @@ def _apple(rng: np.random.Generator) -> _Canonical:
     z_bot = -_cavity_floor(lambda c: body(c * np.array([1, 1, -1])), 60.0, 0.0)
     calyx = _calyx(3.2, z_bot + 1.0, 1.6, phase=rng.uniform(0, 1))
     length = rng.uniform(14.0, 22.0)
+    if family == "sunk":  # the stalk ends inside its cavity
+        length = rng.uniform(0.1, 0.3) * top_depth
     path = _stalk_path(rng, (0.0, 0.0, z_top - 2.5), length + 2.5, rng.uniform(1.0, 4.0))
+    if family == "tilted":  # a stalk leaning 25-45 degrees from the axis, towards any side
+        tilt, az = rng.uniform(math.radians(25.0), math.radians(45.0)), rng.uniform(0.0, 2.0 * math.pi)
+        direction = np.array([math.sin(tilt) * math.cos(az), math.sin(tilt) * math.sin(az), math.cos(tilt)])
+        path = path[0] + np.linspace(0.0, length + 2.5, len(path))[:, None] * direction
     radii = np.linspace(1.7, 1.35, len(path))
 
     def stalk(c):
+        if family == "stalkless":  # picked off: nothing above the cavity floor
+            return np.full(len(c), 1e3)
         d = _chain(c, path, radii)
         return np.minimum(d, _sphere(c, path[-1], 1.75))
 
     def combine(v):
         return _smin(_smin(v["body"], v["stalk"], 1.5), v["calyx"], 1.0)
+
+    if family == "stalkless":  # the stalk mark is the cavity floor
+        path = np.array([[0.0, 0.0, z_top - 6.0], [0.0, 0.0, z_top - 3.0]])
 
     return _Canonical(
         parts={"body": body, "stalk": stalk, "calyx": calyx},
@@ -255,7 +272,7 @@ def _apple(rng: np.random.Generator) -> _Canonical:
     )
 
 
-def _pepper(rng: np.random.Generator) -> _Canonical:
+def _pepper(rng: np.random.Generator, family: str = "standard") -> _Canonical:
     lobes = int(rng.choice([3, 4]))
     lobe_depth = rng.uniform(0.05, 0.10)
     big_lobe = rng.uniform(0.03, 0.06)  # the lobe on +x is the largest
@@ -263,6 +280,17 @@ def _pepper(rng: np.random.Generator) -> _Canonical:
     r0, hz = 34.0, 40.0
     top_r, top_depth = rng.uniform(11.0, 15.0), rng.uniform(8.0, 12.0)
     bot_r, bot_depth = rng.uniform(12.0, 16.0), rng.uniform(4.0, 8.0)
+    # held-out families: five lobes, or 3-5 lobes of unequal size (two more
+    # harmonics at random phases); a conical pepper without its blossom-end
+    # dent, narrowing downwards
+    uneven, phases = np.zeros(2), np.zeros(2)
+    if family == "five-lobed":
+        lobes = 5
+    elif family == "unequal":
+        lobes = int(rng.choice([3, 4, 5]))
+        uneven, phases = rng.uniform(0.03, 0.06, 2), rng.uniform(0.0, 2.0 * math.pi, 2)
+    if family == "conical":
+        bot_depth = -20.0  # the bottom cut sphere clears the body
 
     def body(c):
         z = c[:, 2]
@@ -270,6 +298,9 @@ def _pepper(rng: np.random.Generator) -> _Canonical:
         weight = 0.6 + 0.4 * np.clip(-z / hz, 0.0, 1.0)
         az = _azimuth(c)
         mod = lobe_depth * weight * np.cos(lobes * az) + big_lobe * np.cos(az)
+        mod = mod + weight * (uneven[0] * np.cos(2 * az + phases[0]) + uneven[1] * np.cos(3 * az + phases[1]))
+        if family == "conical":
+            mod = mod - 0.35 * np.clip(-z / hz, 0.0, 1.0) ** 1.5
         rho = np.hypot(c[:, 0], c[:, 1]) / (1.0 + mod)
         n = blockiness
         d = r0 * ((rho / r0) ** n + (np.abs(z) / hz) ** n) ** (1.0 / n) - r0
@@ -423,17 +454,20 @@ class ProductSpec:
     lean_sd: float
     bend_mm: tuple[float, float]
     width_from_bend: bool
-    canonical: Callable[[np.random.Generator], _Canonical] = field(repr=False)
+    canonical: Callable[..., _Canonical] = field(repr=False)
+    families: tuple[str, ...] = ("standard",)
 
 
 PRODUCTS: dict[str, ProductSpec] = {
     "apple": ProductSpec(
         "apple", "Jonagold-like apple: stalk in its cavity, calyx at the bottom",
         (82.28, 81.81, 84.50), (3.66, 4.18, 4.74), 0.6, 0.06, 0.03, (0.0, 0.0), False, _apple,
+        ("standard", "stalkless", "sunk", "tilted", "conical", "ribbed"),
     ),
     "pepper": ProductSpec(
         "pepper", "bell pepper: blocky, 3 or 4 lobes, thick bent stalk on a calyx",
         (69.30, 68.07, 84.23), (11.41, 11.81, 9.72), 0.7, 0.08, 0.03, (0.0, 0.0), False, _pepper,
+        ("standard", "five-lobed", "unequal", "conical"),
     ),
     "zucchini": ProductSpec(
         # Table 1's width (83 +/- 13 mm) exceeds the depth (70 +/- 2 mm): the
@@ -761,6 +795,7 @@ def make_instance(
     n_vertices: int | None = None,
     volume: bool = False,
     name: str | None = None,
+    family: str = "standard",
 ) -> SyntheticInstance:
     """Make one synthetic scan of ``product`` with its ground truth.
 
@@ -785,6 +820,15 @@ def make_instance(
         Also return a CT-like intensity volume (``instance.volume``).
     name : str, optional
         Default ``"<product>"``.
+    family : str, default: "standard"
+        A shape family of the product (``PRODUCTS[product].families``). The
+        standard ones are what hortishape was tuned on; the others are held
+        out for testing it: apples ``"stalkless"`` (picked off; the stalk
+        mark is the cavity floor), ``"sunk"`` (a stalk ending inside its
+        cavity), ``"tilted"`` (leaning 25-45 degrees to any side),
+        ``"conical"`` (narrowing to the blossom end), ``"ribbed"`` (five
+        strong ribs); peppers ``"five-lobed"``, ``"unequal"`` (3-5 lobes of
+        unequal size), ``"conical"`` (pointed, without the blossom-end dent).
 
     Returns
     -------
@@ -803,8 +847,10 @@ def make_instance(
     if n_vertices is not None and not n_vertices >= MIN_VERTICES:
         raise HortishapeError(f"n_vertices must be at least {MIN_VERTICES:,}, got {n_vertices}")
     spec = PRODUCTS[product]
+    if family not in spec.families:
+        raise HortishapeError(f"{product} has no family {family!r}: choose from {', '.join(spec.families)}")
     rng = as_generator(random_state)
-    canon = spec.canonical(rng)
+    canon = spec.canonical(rng) if family == "standard" else spec.canonical(rng, family)
 
     # Canonical extent of the body (stalk excluded), to scale to the sampled size.
     c_verts, c_faces = _canonical_surface(canon)
@@ -1028,16 +1074,16 @@ def read_truth(mesh_path) -> dict:
 
 
 def _make_and_write(args) -> tuple[str, int, list[float]]:
-    product, seed, index, out_dir, pose, noise, n_vertices, volume, entropy = args
+    product, seed, index, out_dir, pose, noise, n_vertices, volume, entropy, family = args
     inst = make_instance(product, random_state=seed, pose=pose, noise=noise, n_vertices=n_vertices,
-                         volume=volume, name=f"{product}_{index:03d}")
+                         volume=volume, name=f"{product}_{index:03d}", family=family)
     write_instance(inst, out_dir, random_seed=entropy)
     return inst.name, inst.mesh.n_vertices, inst.dimensions.tolist()
 
 
 def make_population(
     product: str, n: int, *, random_state: RandomState = None, pose: str = "upright", noise: float = 0.0,
-    n_vertices: int | None = None,
+    n_vertices: int | None = None, family: str = "standard",
 ) -> list[SyntheticInstance]:
     """Make ``n`` instances of ``product`` (in memory).
 
@@ -1052,7 +1098,7 @@ def make_population(
     seeds = spawn_seeds(random_state, n)
     return [
         make_instance(product, random_state=s, pose=pose, noise=noise, n_vertices=n_vertices,
-                      name=f"{product}_{i:03d}")
+                      name=f"{product}_{i:03d}", family=family)
         for i, s in enumerate(seeds)
     ]
 
@@ -1069,6 +1115,7 @@ def write_population(
     volumes: bool = False,
     n_jobs: int | None = None,
     progress: Callable[[Iterable], Iterable] | None = None,
+    family: str = "standard",
 ) -> list[dict]:
     """Make ``n`` instances of ``product`` and write them to ``out_dir``.
 
@@ -1081,7 +1128,7 @@ def write_population(
     n : int
     out_dir : path
     random_state : int or None, default: None
-    pose, noise, n_vertices : see :func:`make_instance`
+    pose, noise, n_vertices, family : see :func:`make_instance`
     volumes : bool, default: False
         Also write a CT-like volume per instance under ``out_dir/volumes``.
     n_jobs : int, optional
@@ -1098,7 +1145,9 @@ def write_population(
     if n < 1:
         raise HortishapeError(f"the number of instances must be at least 1, got {n}")
     seeds = spawn_seeds(random_state, n)
-    jobs = [(product, s, i, str(out_dir), pose, noise, n_vertices, volumes, random_state)
+    if family not in PRODUCTS[product].families:
+        raise HortishapeError(f"{product} has no family {family!r}: choose from {', '.join(PRODUCTS[product].families)}")
+    jobs = [(product, s, i, str(out_dir), pose, noise, n_vertices, volumes, random_state, family)
             for i, s in enumerate(seeds)]
     results = run_jobs(_make_and_write, jobs, n_jobs=n_jobs, progress=progress)
     return [{"name": r[0], "n_vertices": r[1], "dimensions_mm": r[2]} for r in results]
