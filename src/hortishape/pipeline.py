@@ -223,6 +223,7 @@ def registration_log(reg: Registration, *, source: Path, fingerprint: str, diges
             "kept_fraction": float(last.kept_fraction),
             "orientation_index": int(reg.orientation_index),
             "orientation_confidence": float(reg.orientation_confidence),
+            "orientation_ends": reg.orientation_ends,
         },
         "orientation_scores": np.asarray(reg.orientation_scores).tolist(),
         "transform": np.asarray(reg.transform).tolist(),
