@@ -214,3 +214,14 @@ def test_cli_register_with_landmarks(scans, tmp_path, capsys):
     marks.write_text(json.dumps({"apple_001": {"stalk": [0, 0, 0]}}))
     assert main([*args, "--landmarks", str(marks)]) == 1
     assert "no landmarks for the reference apple_000" in capsys.readouterr().err
+
+
+def test_fingerprint_holds_the_configuration_and_the_package_version(template, monkeypatch):
+    import hortishape
+    from hortishape.pipeline import template_fingerprint
+
+    base = template_fingerprint(template, CONFIG)
+    assert template_fingerprint(template, CONFIG) == base
+    assert template_fingerprint(template, replace(CONFIG, end_contrast=0.4)) != base
+    monkeypatch.setattr(hortishape, "__version__", "999.0")
+    assert template_fingerprint(template, CONFIG) != base

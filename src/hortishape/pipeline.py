@@ -147,8 +147,16 @@ def find_scans(folder, out_dir, *, n_jobs: int | None = None, strict: bool = Fal
 
 
 def template_fingerprint(template: Template, config: RegistrationConfig, *, scale: float = 1.0) -> str:
-    """A digest of what decides a registration's result besides the scan's bytes."""
+    """A digest of what decides a registration's result besides the scan's bytes.
+
+    The reference, the configuration, the scale and hortishape's version (a
+    release may change what a configuration does: a build resumed after an
+    upgrade registers its scans again).
+    """
+    import hortishape
+
     h = hashlib.sha256()
+    h.update(f"hortishape {hortishape.__version__}".encode())
     h.update(np.ascontiguousarray(template.mesh.vertices).tobytes())
     h.update(np.ascontiguousarray(template.mesh.faces).tobytes())
     h.update(repr(config).encode())

@@ -4,12 +4,17 @@ A reference (template) surface is deformed onto a target surface so that each
 reference vertex lands on the anatomically corresponding place of the target.
 One call of :func:`register` does:
 
-1. **Initial alignment** (section 2.2.1, eqs. 1-7), on the principal axes of
-   the surfaces (area-weighted; a scan's vertex density depends on its pose
-   in the scanner). The principal axes do not
-   fix the signs and, for round fruit, the order of the axes, so every proper
-   rotation between the two sets of axes (24, see
-   :func:`hortishape.align.candidate_alignments`) is tried with a short, stiff
+1. **Initial alignment** (section 2.2.1, eqs. 1-7). The paper aligns the
+   principal axes; they do not fix the signs and, for round fruit, point
+   anywhere (on real scans they did). By default (``orientation="axis"``)
+   each surface's axis of near revolution and its cavity end are found
+   instead (:func:`hortishape.align.fruit_axis`), and the reference's axis is
+   put on the target's, cavity end on cavity end (both ways when either
+   scan's ends look alike), turned about it in ``axis_turns`` steps
+   (:func:`hortishape.align.axis_alignments`); ``orientation="search"``
+   takes every proper rotation between the two sets of surface principal
+   axes (24, see :func:`hortishape.align.candidate_alignments`). Either
+   way, each candidate is tried with a short, stiff
    elastic registration of a very coarse reference (800 vertices, with the
    stiffness of a ``SEARCH_VERTICES`` one; optionally, ``twists``, the
    winner is also tried turned about its stalk axis in equal steps); the
