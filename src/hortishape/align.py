@@ -421,9 +421,9 @@ CAVITY_MIN_AREA = 0.005
 #: Degrees between the axis of revolution and the direction to the largest
 #: cavity beyond which the latter is kept as a second hypothesis.
 AXIS_AGREEMENT = 30.0
-#: A fruit whose variance along its axis exceeds this times its mean
-#: variance across it (lengths 1.5 times its widths) is elongated: no second
-#: hypothesis.
+#: A fruit whose largest principal variance exceeds this times the mean of
+#: the other two (length 1.5 times its widths) is elongated: its axis is
+#: its first principal axis, with no second hypothesis.
 ELONGATED_VARIANCE = 2.25
 
 
@@ -456,7 +456,7 @@ class FruitAxis:
     alternative : FruitAxis or None
         A second hypothesis, the axis through the largest cavity, when that
         lies more than ``AXIS_AGREEMENT`` degrees from ``direction`` and the
-        fruit is not elongated along ``direction`` (``ELONGATED_VARIANCE``).
+        fruit is not elongated (``ELONGATED_VARIANCE``).
     """
 
     centre: np.ndarray
@@ -518,7 +518,8 @@ def fruit_axis(
 ) -> FruitAxis:
     """The axis a fruit is most nearly a body of revolution about, and its cavity end.
 
-    A fruit grows about its stalk-blossom axis: turned about it, the surface
+    A fruit much longer than wide (``ELONGATED_VARIANCE``) has its length for
+    an axis. Any other grows about its stalk-blossom axis: turned about it, the surface
     stays nearly where it was; turned about any other axis it moves, unless
     the fruit is a sphere, and then the poles' features (the stalk cavity,
     the calyx, a blossom nub) are what moves. The axis is the one of
@@ -602,12 +603,21 @@ def fruit_axis(
                 step /= 2.0
         return axis / np.linalg.norm(axis), best
 
-    # all directions with a third of the samples, then the best few with all
-    dirs = _fibonacci_hemisphere(n_directions)
-    c = costs(dirs, p[: max(n_samples // 3, 1)])
-    dirs = dirs[np.argsort(c)[:5]]
-    c = costs(dirs, p)
-    axis, best = refine(dirs[int(np.argmin(c))], float(c.min()))
+    pa = principal_axes(v, f)
+    elongated = pa.variances[0] > ELONGATED_VARIANCE * 0.5 * (pa.variances[1] + pa.variances[2])
+    if elongated:
+        # a fruit much longer than wide: its length is its axis (a bent one
+        # is no body of revolution, and its most symmetric axis strays: 13
+        # degrees on a bent zucchini, which then fitted better end over end)
+        axis = pa.axes[:, 0]
+        best = float(costs(axis[None], p)[0])
+    else:
+        # all directions with a third of the samples, then the best few with all
+        dirs = _fibonacci_hemisphere(n_directions)
+        c = costs(dirs, p[: max(n_samples // 3, 1)])
+        dirs = dirs[np.argsort(c)[:5]]
+        c = costs(dirs, p)
+        axis, best = refine(dirs[int(np.argmin(c))], float(c.min()))
 
     # cavities: surface samples deeper than CAVITY_DEPTH below the convex
     # hull (of a few thousand vertices: its facets lie within a hundredth of
@@ -634,8 +644,6 @@ def fruit_axis(
     # cavity, when it is far from the axis found, is the other hypothesis.
     # An elongated fruit's axis is not in doubt, and the concave side of its
     # bend is a cavity beside the axis (a banana, a bent zucchini).
-    along = w @ (x @ axis) ** 2
-    elongated = along > ELONGATED_VARIANCE * 0.5 * (w @ (x**2).sum(axis=1) - along)
     toward = None if elongated else _largest_cavity(q[deep], scale, min_points=int(CAVITY_MIN_AREA * len(q)))
     if toward is not None and abs(toward @ axis) < np.cos(np.radians(AXIS_AGREEMENT)):
         other, c_other = refine(toward, float(costs(toward[None], p)[0]))
