@@ -32,6 +32,13 @@ from pathlib import Path
 import numpy as np
 
 
+def _rotation(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """The rotation of the least-squares rigid fit of ``p`` onto ``q``."""
+    from hortishape.align import rigid_fit
+
+    return rigid_fit(p, q)[:3, :3]
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--product", default="apple")
@@ -98,6 +105,14 @@ def main(argv=None) -> int:
           f"(in parallel over the cores)")
     print(f"  peak memory: main process {peak_self:.0f} MB, largest worker {peak_child:.0f} MB")
     print(f"  skipped: {len(result.skipped)}")
+    checked = json.loads((work / "model" / "summary.json").read_text())["orientation_check"]
+    print(f"  orientation check: {len(checked)} suspects, kept "
+          + ", ".join(f"{r['name']} {r['kept']}" for r in checked))
+    print(f"  uncertain orientation (named in the summary): {len(result.uncertain_orientation)} of {len(names)}")
+    rot = {n: np.degrees(np.arccos(np.clip((np.trace(_rotation(registered_i, gt_i)) - 1) / 2, -1, 1)))
+           for n, registered_i, gt_i in zip(names, registered, gt)}
+    wrong = {n: round(float(a)) for n, a in rot.items() if a > 45}
+    print(f"  turned more than 45 degrees from the truth (best rigid fit): {len(wrong)} {wrong}")
     print(f"dense correspondence error vs ground truth: mean {dense.mean():.3f} mm, "
           f"worst instance {dense.max():.3f} mm")
     for lm, e in lm_err.items():
