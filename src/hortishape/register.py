@@ -295,7 +295,7 @@ class RegistrationConfig:
         ``end_contrast`` (else both ways), turned about it in ``axis_turns``
         steps, each candidate judged by a short coarse elastic
         registration. ``"search"``: the same judgement of all 24
-        principal-axis rotations (the orientation of hortishape 0.x; on
+        principal-axis rotations (the previous default; on
         real round fruit the principal axes point anywhere). With a hint
         (``up``, landmarks) both search the hint's turns. ``"pca"``: the
         paper's eq. 7 with deterministic axis signs. ``"none"``: the
