@@ -33,6 +33,7 @@ from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from ._rng import RandomState, as_generator
 from .errors import MeshError
+from .surface import vertex_areas
 
 __all__ = [
     "FruitAxis",
@@ -488,13 +489,6 @@ def _turned(points: np.ndarray, axes: np.ndarray, angles) -> np.ndarray:
     return np.concatenate(out, axis=1)
 
 
-def _vertex_areas(v: np.ndarray, f: np.ndarray) -> np.ndarray:
-    area = 0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
-    w = np.zeros(len(v))
-    np.add.at(w, f.ravel(), np.repeat(area / 3.0, 3))
-    return w
-
-
 def _hull_depth(vertices: np.ndarray, points: np.ndarray, chunk: int = 1000) -> np.ndarray:
     """Distance of each of ``points`` (inside) below the convex hull of ``vertices``."""
     try:
@@ -564,7 +558,7 @@ def fruit_axis(
     v = _points(vertices, "vertices")
     f = np.asarray(faces, dtype=np.int64)
     rng = as_generator(random_state)
-    w = _vertex_areas(v, f)
+    w = vertex_areas(v, f)
     if not w.sum() > 0:
         raise MeshError("the surface has no area")
     centre = w @ v / w.sum()

@@ -88,7 +88,7 @@ import scipy.sparse as sp
 from ._rng import RandomState
 from .errors import HortishapeError, MeshError, NotFittedError
 from .mesh import Mesh, check_mesh, unique_edges
-from .surface import face_areas
+from .surface import face_areas, vertex_areas
 
 if TYPE_CHECKING:  # pragma: no cover
     from .model import ShapeModel
@@ -144,12 +144,6 @@ class Poles:
     stalk: int
     bottom: int
     axis: np.ndarray
-
-
-def _vertex_areas(v: np.ndarray, f: np.ndarray) -> np.ndarray:
-    out = np.zeros(len(v))
-    np.add.at(out, f.ravel(), np.repeat(face_areas(v, f) / 3.0, 3))
-    return out
 
 
 def _edge_graph(v: np.ndarray, f: np.ndarray) -> sp.csr_matrix:
@@ -266,7 +260,7 @@ def find_poles(
         b = _nearest_vertex(v, bottom, "bottom")
         s = _region_centre(graph, _geodesic(graph, b), region)
     else:
-        weights = _vertex_areas(v, f)
+        weights = vertex_areas(v, f)
         centre = weights @ v / weights.sum()
         if axis is None:
             x = v - centre

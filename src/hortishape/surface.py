@@ -33,6 +33,7 @@ __all__ = [
     "face_normals",
     "mean_edge_length",
     "remesh",
+    "vertex_areas",
     "vertex_normals",
 ]
 
@@ -67,6 +68,30 @@ def face_areas(vertices, faces) -> np.ndarray:
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
     return 0.5 * np.linalg.norm(_face_cross(v, f), axis=1)
+
+
+def vertex_areas(vertices, faces) -> np.ndarray:
+    """The area each vertex stands for: a third of each triangle's area, summed over its triangles.
+
+    Parameters
+    ----------
+    vertices : (n, 3) array_like of float
+    faces : (m, 3) array_like of int
+
+    Returns
+    -------
+    (n,) float64 ndarray
+        Sums to the surface's area.
+
+    Examples
+    --------
+    >>> vertex_areas([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], [[0, 1, 2], [1, 3, 2]]).round(4).tolist()
+    [0.1667, 0.3333, 0.3333, 0.1667]
+    """
+    f = np.asarray(faces, dtype=np.int64)
+    out = np.zeros(len(vertices))
+    np.add.at(out, f.ravel(), np.repeat(face_areas(vertices, f) / 3.0, 3))
+    return out
 
 
 def face_normals(vertices, faces) -> np.ndarray:
