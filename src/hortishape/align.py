@@ -341,6 +341,14 @@ def candidate_alignments(
     return out
 
 
+def _axis_frame(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``axis`` made unit, and two unit vectors across it: a right-handed frame ``(a, p1, p2)``."""
+    a = axis / np.linalg.norm(axis)
+    p1 = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+    p1 /= np.linalg.norm(p1)
+    return a, p1, np.cross(a, p1)
+
+
 def _rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Smallest rotation taking unit vector ``a`` onto unit vector ``b``."""
     v = np.cross(a, b)
@@ -585,9 +593,7 @@ def fruit_axis(
         for _ in range(16):
             if step < np.radians(1.0):
                 break
-            e1 = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
-            e1 /= np.linalg.norm(e1)
-            e2 = np.cross(axis, e1)
+            _, e1, e2 = _axis_frame(axis)
             trial = axis + np.tan(step) * (np.cos(ring)[:, None] * e1 + np.sin(ring)[:, None] * e2)
             trial /= np.linalg.norm(trial, axis=1, keepdims=True)
             tc = costs(trial, p)

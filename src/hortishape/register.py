@@ -109,6 +109,7 @@ import scipy.sparse.linalg as spla
 
 from .align import (
     FruitAxis,
+    _axis_frame,
     axis_alignments,
     fruit_axis,
     apply_transform,
@@ -1375,14 +1376,6 @@ def _concavity_axis(lev: _Level, positions: np.ndarray, fraction: float = 0.1) -
     x = positions[pit] - positions.mean(axis=0)
     _, vec = np.linalg.eigh((x * w[:, None]).T @ x)
     return vec[:, -1]
-
-
-def _axis_frame(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``axis`` made unit, and two unit vectors across it: a right-handed frame ``(a, p1, p2)``."""
-    a = axis / np.linalg.norm(axis)
-    p1 = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
-    p1 /= np.linalg.norm(p1)
-    return a, p1, np.cross(a, p1)
 
 
 def _lobes(vertices: np.ndarray, axis: np.ndarray, orders: range = range(3, 9), bands: int = 8) -> float:
