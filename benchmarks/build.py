@@ -55,7 +55,7 @@ def main(argv=None) -> int:
     from hortishape.io import read_mesh
     from hortishape.metrics import generalization
     from hortishape.pipeline import build_model
-    from hortishape.register import prepare_reference
+    from hortishape.registration import prepare_reference
     from hortishape.surface import barycentric_interpolate
 
     work = args.out or Path(tempfile.mkdtemp(prefix="hortishape-bench-"))

@@ -7,14 +7,14 @@ hortishape was tuned on them: they are a test set.
 
 For every ordered pair of the marked round scans (reference A, target B), B
 is turned by a random rotation (seeded) and A is registered onto it with
-:func:`hortishape.register.register`'s defaults. A's marked poles are carried
+:func:`hortishape.registration.register`'s defaults. A's marked poles are carried
 through the correspondence (the reference vertex nearest each mark) and
 compared with B's marks, turned with B:
 
 * stalk and blossom errors (mm): distance from the carried pole to B's mark;
 * axis error (degrees): angle between the carried stalk-blossom axis and B's;
 * the orientation search's confidence
-  (:attr:`hortishape.register.Registration.orientation_confidence`: its
+  (:attr:`hortishape.registration.Registration.orientation_confidence`: its
   margin over the best orientation turned more than 45 degrees away; 0 a
   tie).
 
@@ -63,7 +63,7 @@ def _load(name: str, poles: dict):
 
 def run(pairs, n_points: int, seed: int) -> list[dict]:
     from hortishape.mesh import Mesh
-    from hortishape.register import prepare_reference, register
+    from hortishape.registration import prepare_reference, register
 
     poles = json.loads((DATA / "poles.json").read_text())
     scans = {name: _load(name, poles) for name in ROUND}

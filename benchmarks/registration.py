@@ -1,4 +1,4 @@
-"""Benchmark of hortishape.register on synthetic populations, with nricp_amberg as baseline.
+"""Benchmark of hortishape.registration on synthetic populations, with nricp_amberg as baseline.
 
 For each product and pose, instance 0 of a synthetic population is the
 reference (resampled to the paper's vertex count, section 3.1) and the other
@@ -119,7 +119,7 @@ def _best_turn(vertices: np.ndarray, truth: np.ndarray, axis: np.ndarray) -> tup
 def _measure(vertices, faces, ref_global, template, canon, lm_loc, tgt):
     from hortishape.align import apply_transform, rigid_fit
     from hortishape.mesh import Mesh
-    from hortishape.register import _folded_faces  # the definition the fold repair uses
+    from hortishape.registration.folds import _folded_faces  # the definition the fold repair uses
     from hortishape.surface import barycentric_interpolate, closest_points
 
     truth_cp = closest_points(Mesh(tgt["canonical"], tgt["mesh"].faces), canon)
@@ -176,7 +176,7 @@ def run_class(product, pose, files, n_baseline, config=None):
     """Worker: prepare the reference, register every target, measure (separate process)."""
     warnings.simplefilter("ignore")
     from hortishape.align import rotation_angle
-    from hortishape.register import RegistrationConfig, prepare_reference, register
+    from hortishape.registration import RegistrationConfig, prepare_reference, register
     from hortishape.surface import barycentric_interpolate, closest_points
 
     ref = _load(files[0])

@@ -12,7 +12,7 @@ from hortishape.errors import HortishapeError
 from hortishape.io import read_mesh, write_mesh
 from hortishape.model import ShapeModel
 from hortishape.pipeline import build_model, check_scans, choose_reference, fit_scan
-from hortishape.register import RegistrationConfig
+from hortishape.registration import RegistrationConfig
 
 CONFIG = RegistrationConfig(n_iterations=12)
 
@@ -163,7 +163,7 @@ def test_cli_build_with_landmarks(scans, tmp_path, capsys):
             assert json.loads((folder / f"{name}.json").read_text())["landmarks"] == ["bottom", "stalk_tip"]
     # in both passes the vertex nearest the reference's calyx mark is pulled onto each scan's
     ref = summary["reference"].rsplit("/", 1)[-1][: -len(".ply")]
-    from hortishape.register import prepare_reference
+    from hortishape.registration import prepare_reference
 
     ref_bottom = json.loads((scans / f"{ref}.truth.json").read_text())["landmarks"]["bottom"]
     template = prepare_reference(read_mesh(scans / f"{ref}.ply"), 2000)

@@ -156,7 +156,7 @@ def test_every_option_the_readme_names_exists():
 
 def test_up_option_reaches_the_configuration_and_its_help_states_the_tolerance():
     from hortishape.cli import _registration_config
-    from hortishape.register import UP_TOLERANCE
+    from hortishape.registration.config import UP_TOLERANCE
 
     sub = _subparsers()["register"]
     assert f"{UP_TOLERANCE:g} degrees" in sub.format_help().replace("\n", " ").replace("  ", " ")

@@ -391,7 +391,7 @@ def test_cli_extract(volumes, tmp_path, capsys):
 
 def test_build_from_a_folder_of_volumes(volumes, tmp_path):
     from hortishape.pipeline import build_model, find_scans
-    from hortishape.register import RegistrationConfig
+    from hortishape.registration import RegistrationConfig
 
     write_mesh(volumes / "not_a_scan.txt.ply", Mesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]]))
     try:

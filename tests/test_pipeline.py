@@ -10,7 +10,7 @@ from hortishape import synth
 from hortishape.errors import HortishapeError
 from hortishape.io import read_mesh, write_mesh
 from hortishape.pipeline import find_meshes, register_files
-from hortishape.register import RegistrationConfig, prepare_reference
+from hortishape.registration import RegistrationConfig, prepare_reference
 
 CONFIG = RegistrationConfig(n_iterations=12)
 
@@ -193,7 +193,7 @@ def test_cli_register_with_landmarks(scans, tmp_path, capsys):
     assert log["landmarks"] == ["bottom", "stalk_tip"]
     # the reference's vertex nearest its calyx mark is pulled onto the scan's (at 2,000
     # vertices the thin stalk is not resolved: its nearest vertex lies on the body)
-    from hortishape.register import prepare_reference
+    from hortishape.registration import prepare_reference
 
     ref_bottom = json.loads((scans / "apple_000.truth.json").read_text())["landmarks"]["bottom"]
     template = prepare_reference(read_mesh(scans / "apple_000.ply"), 2000)
@@ -225,3 +225,16 @@ def test_fingerprint_holds_the_configuration_and_the_package_version(template, m
     assert template_fingerprint(template, replace(CONFIG, end_contrast=0.4)) != base
     monkeypatch.setattr(hortishape, "__version__", "999.0")
     assert template_fingerprint(template, CONFIG) != base
+
+
+def test_fingerprint_changes_with_a_heuristic_constant(template, monkeypatch):
+    from hortishape import align
+    from hortishape.pipeline import template_fingerprint
+    from hortishape.registration import config
+
+    base = template_fingerprint(template, CONFIG)
+    monkeypatch.setattr(config, "MAX_REFINE_TURN", config.MAX_REFINE_TURN + 1.0)
+    turned = template_fingerprint(template, CONFIG)
+    assert turned != base
+    monkeypatch.setattr(align, "END_CONE", align.END_CONE + 1.0)
+    assert template_fingerprint(template, CONFIG) not in (base, turned)

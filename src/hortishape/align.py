@@ -7,7 +7,7 @@ nor, for a round fruit whose variances are nearly equal, their order, so it
 can turn a fruit upside down or sideways. :func:`candidate_alignments`
 therefore lists every proper rotation that maps the reference's principal
 axes onto the target's (24 = 6 axis orders x 4 sign choices with determinant
-+1); :mod:`hortishape.register` chooses among them by the quality of a coarse
++1); :mod:`hortishape.registration` chooses among them by the quality of a coarse
 elastic registration.
 
 That choice does not carry over to fruit the project did not generate: on

@@ -318,7 +318,7 @@ def _add_registration_options(p) -> None:
 
 
 def _registration_config(args):
-    from .register import RegistrationConfig
+    from .registration import RegistrationConfig
 
     try:
         return RegistrationConfig(
@@ -389,7 +389,7 @@ def _print_results(results) -> int:
 
 def _run_register(args) -> int:
     from .pipeline import read_reference_landmarks, register_files
-    from .register import prepare_reference
+    from .registration import prepare_reference
     from .units import read_scan
 
     config = _registration_config(args)

@@ -30,7 +30,7 @@ from .align import rigid_transform, rotation_about
 from .errors import ConvergenceWarning, HortishapeError
 from .io import atomic_path, is_mesh_file, mesh_formats, read_mesh, write_mesh
 from .mesh import Mesh
-from .register import Registration, RegistrationConfig, Template, prepare_reference, register
+from .registration import Registration, RegistrationConfig, Template, heuristics, prepare_reference, register
 from .units import PLAUSIBLE_EXTENT_MM, SizeCheck, read_scan
 
 __all__ = ["InstanceResult", "find_meshes", "find_scans", "register_files", "template_fingerprint"]
@@ -68,7 +68,7 @@ class InstanceResult:
         Fraction of reference vertices with a kept correspondence at the end.
     orientation_confidence : float
         The orientation search's margin over the best distinct orientation
-        (:attr:`hortishape.register.Registration.orientation_confidence`):
+        (:attr:`hortishape.registration.Registration.orientation_confidence`):
         0 a tie, towards 1 sure; ``nan`` without a search.
     """
 
@@ -149,14 +149,16 @@ def find_scans(folder, out_dir, *, n_jobs: int | None = None, strict: bool = Fal
 def template_fingerprint(template: Template, config: RegistrationConfig, *, scale: float = 1.0) -> str:
     """A digest of what decides a registration's result besides the scan's bytes.
 
-    The reference, the configuration, the scale and hortishape's version (a
+    The reference, the configuration, the scale, hortishape's version (a
     release may change what a configuration does: a build resumed after an
-    upgrade registers its scans again).
+    upgrade registers its scans again) and the registration's heuristic
+    constants (:func:`hortishape.registration.heuristics`).
     """
     import hortishape
 
     h = hashlib.sha256()
     h.update(f"hortishape {hortishape.__version__}".encode())
+    h.update(repr(heuristics()).encode())
     h.update(np.ascontiguousarray(template.mesh.vertices).tobytes())
     h.update(np.ascontiguousarray(template.mesh.faces).tobytes())
     h.update(repr(config).encode())
@@ -233,6 +235,7 @@ def registration_log(reg: Registration, *, source: Path, fingerprint: str, diges
             "orientation_confidence": float(reg.orientation_confidence),
             "orientation_ends": reg.orientation_ends,
         },
+        "plan": None if reg.plan is None else asdict(reg.plan),
         "orientation_scores": np.asarray(reg.orientation_scores).tolist(),
         "transform": np.asarray(reg.transform).tolist(),
         "iterations": [asdict(r) for r in reg.log],
@@ -326,7 +329,7 @@ def register_files(
     ----------
     reference : Mesh or Template
         The reference; a ``Mesh`` is used as it is (see
-        :func:`hortishape.register.prepare_reference` to resample it first).
+        :func:`hortishape.registration.prepare_reference` to resample it first).
     targets : sequence of path
         Scan files (any mesh format :mod:`hortishape.io` reads).
     out_dir : path
@@ -352,7 +355,7 @@ def register_files(
         from :func:`hortishape.evaluate.read_landmarks`); with
         ``reference_landmarks``, the named points on the reference in mm,
         they fix each scan's orientation and are pulled together (see
-        ``reference_landmarks`` of :func:`hortishape.register.register`). A
+        ``reference_landmarks`` of :func:`hortishape.registration.register`). A
         scan without any is registered as without landmarks.
     reference_landmarks : mapping of str to (3,) array_like, optional
         Named points on the reference, in mm, in its coordinates.

@@ -1,6 +1,6 @@
 """Surface utilities: uniform remeshing, normals, closest points and input checks.
 
-The registration (:mod:`hortishape.register`) needs a reference surface that is
+The registration (:mod:`hortishape.registration`) needs a reference surface that is
 sampled uniformly with well-shaped triangles (the paper resamples it with
 Poisson-disk sampling to 30,000 vertices for apple, 40,000 for pepper and
 13,000 for zucchini, section 3.1). :func:`remesh` produces such a mesh and

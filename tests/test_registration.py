@@ -1,4 +1,4 @@
-"""Tests of hortishape.register: RN-ICP-T with the eq. 8 elastic step."""
+"""Tests of hortishape.registration: RN-ICP-T with the eq. 8 elastic step."""
 
 import warnings
 
@@ -9,13 +9,16 @@ import trimesh
 from hortishape.align import apply_transform, rigid_transform, rotation_about, rotation_angle
 from hortishape.errors import ConvergenceWarning, MeshError
 from hortishape.mesh import Mesh
-from hortishape.register import (
+from hortishape.registration import (
     Registration,
     RegistrationConfig,
+    RegistrationPlan,
+    plan_registration,
     prepare_reference,
     register,
     register_many,
 )
+from hortishape.registration.config import LOBED_RIDGE, ROUND_RIDGE
 from hortishape.surface import barycentric_interpolate, closest_points, face_normals, remesh, vertex_normals
 
 
@@ -93,6 +96,21 @@ def test_known_rigid_motion_is_recovered(template, dense):
     assert runner_up.orientation_index == finite[np.argsort(reg.orientation_scores[finite])[1]]
     assert len(reg.log) >= 30 and reg.log[0].beta == 50.0
     assert {rec.level for rec in reg.log} >= {"coarse", "fine", "final"}
+    # the auto choices, resolved once for this round reference and recorded
+    assert reg.plan == RegistrationPlan("axis", True, "taper", reg.plan.warp_ridge)
+    assert reg.plan.warp_ridge in (ROUND_RIDGE, LOBED_RIDGE)
+
+
+def test_plan_resolves_the_auto_choices_from_the_reference(template, dense):
+    long = prepare_reference(Mesh(dense.vertices * [1.0, 1.0, 2.5], dense.faces), 2000, coarse_vertices=600,
+                             search_vertices=300)
+    plan = plan_registration(long)
+    # an elongated reference: quadratic warp, no taper in the search (see ELONGATED)
+    assert (plan.warp, plan.search_taper, plan.warp_ridge) == ("quadratic", False, LOBED_RIDGE)
+    fixed = plan_registration(template, RegistrationConfig(warp="affine", warp_ridge=0.2, search_taper=False))
+    assert (fixed.warp, fixed.warp_ridge, fixed.search_taper) == ("affine", 0.2, False)
+    reg = register(template, dense, RegistrationConfig(max_iterations=30, n_iterations=3), initial_transform=np.eye(4))
+    assert reg.plan.orientation == "given" and reg.orientation_index == -1
 
 
 def test_known_smooth_deformation_is_recovered(template, dense):
@@ -261,7 +279,8 @@ def test_taper_warp_takes_up_a_taper(template, dense):
 
 
 def test_concavity_axis_finds_the_axis_through_the_pits():
-    from hortishape.register import _concavity_axis, _Level
+    from hortishape.registration.template import _Level
+    from hortishape.registration.warp import _concavity_axis
 
     # a sphere (no axis of its own) with a pit at each pole, then turned: the
     # axis through the pits is the turned z axis
@@ -275,7 +294,7 @@ def test_concavity_axis_finds_the_axis_through_the_pits():
 
 
 def test_lobes_measures_the_angular_harmonics_about_the_axis():
-    from hortishape.register import _lobes
+    from hortishape.registration.warp import _lobes
 
     s = trimesh.creation.icosphere(5)
     v = s.vertices
@@ -298,7 +317,8 @@ def test_round_reference_warp_finds_the_twist_about_the_stalk_axis():
     # axis, the warp with the strong damping kept the turn (measured 3.2
     # degrees at the end), the weak one ("auto" for a round reference
     # without lobes) finds it (0.34-0.38 degrees).
-    from hortishape.register import LOBED_RIDGE, ROUND_RIDGE, _concavity_axis, _lobes, _warp_ridge
+    from hortishape.registration.config import LOBED_RIDGE, ROUND_RIDGE
+    from hortishape.registration.warp import _concavity_axis, _lobes, _warp_ridge
 
     ref, tgt, template = _synthetic_pair("apple", 1000, 1002, 5000)
     coarse = template.level("coarse")
@@ -333,7 +353,7 @@ def test_twist_candidates_keep_a_right_answer(template, dense):
 
 
 def test_auto_warp_is_quadratic_for_elongated_references_and_a_taper_for_round_ones():
-    from hortishape.register import _warp_kind
+    from hortishape.registration.warp import _warp_kind
 
     rng = np.random.default_rng(0)
     ball = rng.normal(size=(2000, 3)) * [40.0, 39.0, 42.0]  # an apple: 1.0-1.1
@@ -363,7 +383,7 @@ def test_zucchini_correspondence_does_not_slide_along_a_shorter_target():
 
 
 def test_folded_triangles_are_repaired(template):
-    from hortishape.register import _folded_faces, _repair_folds
+    from hortishape.registration.folds import _folded_faces, _repair_folds
 
     fine = template.level("fine")
     placed = fine.vertices
@@ -444,8 +464,9 @@ def test_orientation_search_is_not_fooled_by_a_taper():
 
 
 def test_uncovered_fraction_and_alternative_rank():
-    from hortishape.correspond import prepare_target
-    from hortishape.register import _alternative_rank, _uncovered_fraction
+    from hortishape.registration.correspondences import prepare_target
+    from hortishape.registration.correspondences import _uncovered_fraction
+    from hortishape.registration.orientation import _alternative_rank
 
     s = trimesh.creation.icosphere(5, radius=40.0)  # edges of 1.4-1.7 mm
     ball = Registration(s.vertices, s.faces, np.eye(4), (), True)
@@ -466,7 +487,7 @@ def test_uncovered_fraction_and_alternative_rank():
 
 
 def test_search_taper_is_only_for_round_references():
-    from hortishape.register import _search_taper
+    from hortishape.registration.orientation import _search_taper
 
     s = trimesh.creation.icosphere(3, radius=1.0).vertices
     auto = RegistrationConfig()
@@ -478,7 +499,7 @@ def test_search_taper_is_only_for_round_references():
 
 
 def test_taper_step_recovers_a_known_taper():
-    from hortishape.register import _taper_step
+    from hortishape.registration.elastic import _taper_step
 
     rng = np.random.default_rng(0)
     x = rng.normal(size=(2000, 3)) * [20.0, 20.0, 40.0]
@@ -548,7 +569,7 @@ def test_up_hint_excludes_upside_down_orientations_and_is_checked():
 
 
 def test_orientation_confidence_is_the_margin_over_a_distinct_orientation():
-    from hortishape.register import ALTERNATIVE_TURN
+    from hortishape.registration.config import ALTERNATIVE_TURN
 
     ref, tgt, template = _synthetic_pair("apple", 1000, 1003, 5000)
     reg = _register_quietly(template, tgt.mesh)

@@ -1,10 +1,10 @@
-"""Tests of hortishape.correspond: normal-ray casting and its three filters."""
+"""Tests of hortishape.registration.correspondences: normal-ray casting and its three filters."""
 
 import numpy as np
 import pytest
 import trimesh
 
-from hortishape.correspond import (
+from hortishape.registration.correspondences import (
     CROSSING,
     DISTANCE,
     KEPT,

@@ -1,0 +1,442 @@
+"""The registration's parameters: :class:`RegistrationConfig` and the heuristic constants.
+
+Every constant the registration's heuristics use lives here, with the
+measurement that set it, so that :func:`heuristics` can hand them all to a
+build's resume fingerprint: a build made with other constants is not resumed.
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+
+import numpy as np
+
+
+#: Iterations run on the coarse level while beta (rescaled to the coarse
+#: edge length) is at least this: the displacement field is then smooth over
+#: at least about a coarse edge and barycentric interpolation loses little
+#: (measured: 2.0 gave the same errors and cost two more fine iterations).
+COARSE_MIN_BETA = 1.0
+
+#: The global warp is used only if it brings the surfaces closer by more than
+#: this fraction of the reference's RMS radius (0.2 mm on an apple) in mean
+#: point-to-plane distance. A warp taken up for less mostly moves vertices
+#: tangentially to fit small bumps: on a target made by a smooth 0.2 mm
+#: deformation it moved the correspondence 0.32 mm off the truth, against
+#: 0.06 mm without it.
+WARP_MIN_GAIN = 0.005
+
+#: ``warp="auto"`` takes the quadratic warp for a reference whose longest
+#: principal axis is at least this many times the next (standard deviations).
+#: Measured with ``benchmarks/registration.py`` (4 upright targets per class),
+#: quadratic against affine: zucchini 49 -> 24 mm dense error, banana 3.0 ->
+#: 1.8 mm, pear median 3.9 -> 1.3 mm; but pepper median 1.9 -> 5.3 mm (on a
+#: round fruit the second-order terms are barely seen and slide the surface).
+ELONGATED = 1.5
+
+#: Damping of the warp's Gauss-Newton steps (``warp_ridge="auto"``): for a
+#: round reference without lobes, and for every other one. On a round fruit
+#: the residual barely sees the turn about the stalk axis: an apple's twist
+#: shows only in a cheek 2-5 % fuller on one side. The stronger damping kept
+#: the search's twist (1-4 degrees off on the benchmark's apples, about 0.7 mm
+#: of dense error per degree); the weaker one lets the two-sided fit find it
+#: (measured, the warp alone from the true pose turned 4 degrees: back to
+#: within 0.1-1.6 degrees, against 3.1-3.7 with 0.05). Benchmark apples,
+#: dense error upright / random: 0.83 / 1.33 mm with 0.05, 0.63 / 0.90 with
+#: 0.01, 0.52 / 0.55 with 0.001. On a lobed reference the free twist turns
+#: the lobes onto those of a target with another lobe count (peppers, random
+#: pose: 1.47 -> 2.76 mm, one turned 14 degrees), and with the quadratic warp
+#: of elongated ones the other terms wander (zucchini 6.9 -> 10.3 mm): those
+#: keep 0.05, and so does the affine warp, not measured with the weak one.
+ROUND_RIDGE = 0.001
+LOBED_RIDGE = 0.05
+
+#: A reference is lobed if an angular harmonic of order 3 or more of its
+#: radius about the stalk axis (relative to the mean radius, over the middle
+#: 60 % of its height; :func:`_lobes`) is at least this. Measured on the
+#: 2,500-vertex coarse level: ten synthetic apples 0.001-0.003 (their five
+#: ribs), ten peppers 0.034-0.059; the real scans in the YCB set: orange
+#: 0.003, lemon 0.006, apple 0.010 and pear 0.012 below, peach 0.017 (its
+#: suture), plum and strawberry 0.020 above.
+LOBED = 0.015
+
+#: Filter (c) (rays crossing the reference) is skipped in an iteration whose
+#: kept hits are all nearer than this many edge lengths of the level: a
+#: shorter ray can cross the reference only where it folds back within half
+#: an edge. Once the surface sits on the target every ray is that short
+#: (measured on peppers: 0-46 of 40,000 kept rays are longer after the first
+#: fine iteration, none after the third, and no ray crossed in any
+#: iteration), and the ray structure of the deforming reference (40 ms at
+#: 40k vertices) is not built. Testing only the longer rays instead changed
+#: the result of one badly registered zucchini, where short rays do cross.
+CROSSING_MIN_EDGES = 0.5
+
+#: The orientation search's stiffness is that of the schedule's start on a
+#: reference of this many vertices (the paper's apple), whatever the
+#: reference's own count. Eq. 8's beta is a smoothing length in edges, so
+#: a search defined at the reference's resolution was stiffer in
+#: millimetres on a coarse reference, and its choice depended on the vertex
+#: count asked for: one pepper came out upside down with a 3,000-20,000
+#: vertex reference and right with 40,000. Measured with the search alone on
+#: the pairs of ``benchmarks/registration.py`` (4 targets x 2 poses x 5
+#: classes, references of 5,000 vertices and of the paper's count), wrong
+#: orientations (more than 45 degrees): 4 of 80 at the reference's
+#: resolution, 0 of 80 at 30,000 vertices; with 0.7, 0.5 or 0.35 times
+#: that stiffness 5, 7 and 14 of 80.
+SEARCH_VERTICES = 30_000
+
+#: Largest turn (degrees) the rigid refinement after the orientation search
+#: may make; the search's candidates lie within about 25 degrees of the truth
+#: when right (measured on apples and peppers), neighbouring lobes 90 apart.
+MAX_REFINE_TURN = 35.0
+
+#: Degrees filter (a) allows on the coarse level beyond ``max_angle``. Its
+#: vertex normals stray from the full reference's where the surface bends
+#: within a few coarse edges (measured, 2,500 vertices: up to 15 degrees on
+#: a pepper's stalk, 33 on a pear's, 49 on an apple's; median 0.3-1.1). With
+#: the paper's 30 degrees there, a pepper's stalk that overshoots the scan's
+#: found no correspondence and stayed in the air (stalk tip error 7.6 mm on
+#: one pepper in a random pose, 1.1 mm upright); with 45: benchmark stalk
+#: tip, pepper random pose 4.0 -> 1.2 mm, upright 1.4 -> 1.1, other classes
+#: within 0.6 mm, dense error unchanged.
+COARSE_ANGLE_SLACK = 15.0
+
+#: ``coverage_check``: a registration leaves the scan uncovered if more than
+#: this fraction of the scan's vertices lie farther than ``UNCOVERED_EDGES``
+#: edge lengths of the reference from the registered surface.
+UNCOVERED_MAX = 0.01
+UNCOVERED_EDGES = 2.0
+
+#: Three landmarks or more fix the orientation by their rigid fit unless they
+#: lie nearly on a line: their spread across the line (second singular value)
+#: must be at least this fraction of the spread along it.
+LANDMARK_SPREAD = 0.05
+
+#: With a hint of the stalk's direction (``up``, ``reference_up`` and
+#: ``target_up``), orientations found by the search that put the reference's
+#: stalk more than this many degrees from it are excluded: upside-down and
+#: sideways ones. Wider than the lean of a scan on the bed, since the stiff
+#: search leaves a candidate tilted by up to about 20 degrees more.
+UP_TOLERANCE = 60.0
+
+#: The alternative orientation ``coverage_check`` tries, and the one the
+#: chosen orientation's confidence is measured against, is the best-scored
+#: search candidate turned from the chosen one by more than this (degrees).
+ALTERNATIVE_TURN = 45.0
+
+
+@dataclass(frozen=True)
+class RegistrationConfig:
+    """Parameters of :func:`register`; the defaults are the paper's.
+
+    Attributes
+    ----------
+    n_iterations : int, default: 30
+        Length of the linear stiffness schedule (section 3.1).
+    beta_start, beta_end : float, default: 50.0, 1.0
+        Stiffness at the first and last scheduled iteration (section 3.1),
+        defined at the resolution of the reference.
+    max_angle : float, default: 30.0
+        Correspondence filter (a): normal tolerance in degrees (on the
+        coarse level of ``multiresolution``, ``COARSE_ANGLE_SLACK`` more).
+    distance_factor : float, default: 20.0
+        Correspondence filter (b): hits farther than this times the previous
+        iteration's mean distance are rejected (no limit in the first).
+    distance_floor : float, default: 5.0
+        Filter (b) never rejects a hit closer than this many edge lengths of
+        the current level. Once the surface sits on the scan, d_t falls to
+        thousandths of a millimetre and 20 d_t to a tenth: a part still
+        millimetres off, such as a stalk tip overshooting the scan's, loses
+        its last correspondences and stays in the air. Measured with
+        ``benchmarks/registration.py`` (4 upright targets per class), 0
+        against 5: stalk tip error apple 3.8 -> 3.0 mm, pepper 6.8 -> 3.9,
+        pear 6.7 -> 5.8, banana 2.4 -> 0.5, zucchini 10.6 -> 8.7; geometric
+        error pepper 0.027 -> 0.010 mm, zucchini 0.047 -> 0.013; dense error
+        unchanged. ``0`` is the paper's filter.
+    check_crossings : bool, default: True
+        Correspondence filter (c) against the reference itself.
+    tolerance : float, default: 0.001
+        Convergence: ``|d_t - d_(t-1)| / d_t < tolerance`` at ``beta_end``.
+    max_iterations : int, default: 50
+        Cap on the total number of iterations (schedule + convergence).
+    orientation : {"axis", "search", "pca", "none"}, default: "axis"
+        Initial alignment. ``"axis"``: the reference's axis of near
+        revolution put on the target's (:func:`hortishape.align.fruit_axis`),
+        cavity end on cavity end when both scans' ends differ by at least
+        ``end_contrast`` (else both ways), turned about it in ``axis_turns``
+        steps, each candidate judged by a short coarse elastic
+        registration. ``"search"``: the same judgement of all 24
+        principal-axis rotations (the previous default; on
+        real round fruit the principal axes point anywhere). With a hint
+        (``up``, landmarks) both search the hint's turns. ``"pca"``: the
+        paper's eq. 7 with deterministic axis signs. ``"none"``: the
+        reference is used where it is (or where ``initial_transform`` puts
+        it). Measured on six real scans (``benchmarks/real_poles.py``, 30
+        ordered pairs of different fruit): see the README.
+    end_contrast : float, default: 0.15
+        ``orientation="axis"`` puts the cavity end on the cavity end, without
+        trying the other way, when :attr:`hortishape.align.FruitAxis.contrast`
+        of both scans is at least this. On the synthetic tuning set (21 each
+        of apples, peppers, zucchini, pears and bananas in random poses) the
+        cavity end was the stalk end on every scan with a contrast above
+        0.10; below, the bananas' ends (0.01-0.10) point either way. 0.5
+        first, which left the ends of a pepper reference with 0.19 to the
+        fits: 5 of 12 peppers of a build came out upside down.
+    axis_turns : int, default: 4
+        Turns about the axis that ``orientation="axis"`` tries, equally
+        spaced from the one that puts the reference's widest direction
+        across the axis on the target's (:func:`hortishape.align.axis_alignments`);
+        the refinement after the search closes the rest. The search's
+        residual tells turns apart poorly: with 12 turns (30 degrees apart)
+        3 of 8 synthetic apples in a random pose ended 70-134 degrees turned
+        (``benchmarks/registration.py --n 9``).
+    search_iterations : int, default: 6
+        Iterations of each orientation candidate's coarse registration.
+    search_finalists : int, default: 3
+        The best this many candidates of the search are judged again by the
+        same short registration on the coarse level (2,500 vertices instead
+        of 800), which decides (1: the search level decides). On the search
+        level the score of a candidate moves by about 5 % with the scan's
+        triangulation alone: one pepper scanned in two poses had its right
+        candidate and one turned 90 degrees scoring 0.424 and 0.476 in one
+        pose, 0.453 and 0.452 in the other; on the coarse level 0.403 and
+        0.454, 0.403 and 0.448. Over ``benchmarks/registration.py`` (4
+        targets x 2 poses x 5 classes) the coarse level never turned a right
+        choice into a wrong one.
+    orientation_rank : int, default: 0
+        Start from the candidate with this rank (0: the best score; the
+        finalists first, by their coarse-level score).
+        :func:`hortishape.pipeline.build_model` registers a scan again from
+        the runner-up when the search's choice was close or the result is an
+        outlier among the population, and keeps the one that agrees with the
+        others.
+    search_affine : bool, default: True
+        The global step of the orientation search's short registrations is
+        an affine least-squares fit of the kept pairs instead of a rigid one
+        (falling back to rigid as for ``affine``), and the refinement starts
+        from the rotation of the winner's affine map. Width and depth vary
+        independently of a fruit's anatomy (Table 1: 82 +/- 4 and
+        82 +/- 4 mm for apples); a rigid fit turns a reference to lay its
+        wider side along the scan's wider side. Measured on one pear: rigid
+        ICP started at the true pose converged 76 degrees away, from every
+        start; affine ICP 12 degrees. With ``benchmarks/registration.py`` (4
+        targets x 2 poses x 5 classes), ``False`` against ``True``: wrong
+        orientations (more than 45 degrees off) 5 -> 2 of 40 (the two left
+        are one straight zucchini, see the module notes); dense
+        correspondence error pepper 15.4 / 2.4 -> 1.7 / 2.4 mm (upright /
+        random pose), pear 8.3 / 8.3 -> 1.8 / 1.8 mm, apple 2.7 / 3.3 ->
+        2.6 / 3.3 mm. Refining from the affine map itself instead of its
+        rotation: apple 3.7 / 6.2, pepper 2.9 / 5.1 mm. Measured again with
+        the surface's principal axes, ``search_finalists`` and the search
+        stiffness of ``SEARCH_VERTICES``: wrong orientations 7 -> 1 of 40,
+        pepper 24.8 / 11.6 -> 1.6 / 2.1 mm, pear 8.3 / 8.5 -> 1.8 / 1.5 mm.
+    search_taper : {"auto", True, False}, default: "auto"
+        The global step of the search's short registrations also fits a
+        taper about the reference's symmetry axis (cross-sections widening
+        linearly along it; :func:`_taper_step`), so that a scan whose top is
+        wider than the reference's bottom is not fitted better upside down.
+        ``"auto"``: for a round reference only (one that ``warp="auto"``
+        tapers); on an elongated one the taper is part of what tells the
+        ends apart (a zucchini's club). Measured with
+        ``benchmarks/registration.py --n 21`` (20 targets x 2 poses per
+        class): without it 4 of 20 peppers came out upside down in both
+        poses (their tops 9-13 % wider than their middle, the reference's
+        7 % narrower; dense error 15.0 / 15.4 mm upright / random), with it
+        one in the random pose (a pepper wider than tall whose two ends
+        scored within 0.1 %; ``coverage_check`` catches it); on zucchini it
+        turned one end over end.
+    coverage_check : bool, default: True
+        After the registration, the fraction of the scan's vertices (20,000
+        of them, evenly spread) farther than ``UNCOVERED_EDGES`` (2) edge
+        lengths of the reference from the registered surface is measured;
+        above ``UNCOVERED_MAX`` (1 %) part of the scan was not reached (its
+        stalk, when the reference came out upside down), and the
+        registration is run again from the best search candidate turned by
+        more than ``ALTERNATIVE_TURN`` (45) degrees from the chosen one; the
+        result that leaves less uncovered is kept. Measured with
+        ``benchmarks/registration.py --n 21``: good registrations leave
+        0-0.5 % uncovered (pears the most: their stalk tips), an upside-down
+        pepper 4 %, two zucchini whose stalk the warp missed 1.4-1.8 %.
+        Costs a nearest-vertex query (about 0.02 s), and a second
+        registration when it fires.
+    up : (3,) tuple of float, optional
+        The reference and every target stand with the stalk towards this
+        direction (e.g. ``(0, 0, 1)``: scanned upright on the scanner's bed):
+        the orientations the search finds that put the reference's stalk
+        more than ``UP_TOLERANCE`` degrees from it are excluded, and turns
+        about it are searched if none is left (``reference_up`` and
+        ``target_up`` of :func:`register`, for both). Default: no hint.
+    twists : int, default: 0
+        After the principal-axis candidates, the best one is also tried
+        turned about its stalk axis (the principal axis whose variance
+        stands apart) in this many equal steps (0: not at all). Off by
+        default: with 12 it fixed one apple's twist (15 -> 9 degrees) but
+        broke another's (9 -> 52) and a pepper's (20 -> 102) in
+        ``benchmarks/registration.py`` (4 targets x 2 poses x 5 classes):
+        the search residual does not tell twists apart reliably.
+    rigid_steps : bool, default: True
+        The global least-squares step (rigid or affine, see ``affine``) in
+        every iteration.
+    affine : {"none", "stiff", "all"}, default: "none"
+        A globally affine step inside the loop: ``"stiff"``: the global step
+        of the search (whatever ``search_affine``) and of the coarse-level
+        iterations is an affine
+        least-squares fit of the kept pairs instead of a rigid one;
+        ``"all"``: in every iteration; ``"none"``: rigid steps only. Affine
+        fits that would reflect or squash the surface (a singular value
+        outside [1/3, 3]) fall back to rigid. ``"stiff"`` doubled the
+        apples' dense correspondence error (``benchmarks/registration.py``,
+        measured when the search was still rigid).
+    warp : {"auto", "affine", "taper", "quadratic", "none"}, default: "auto"
+        The paper's initializing globally affine step (section 1: "an
+        initializing globally affine step is added. Therefore, using only
+        translation of the vertices is sufficient"): after the orientation
+        search, a two-sided point-to-plane ICP of a global map of the
+        undeformed coarse level (:func:`_fit_warp`), so that size and
+        proportion differences are taken up before the translation-only
+        elastic steps, which move vertices along their normals only and
+        cannot stretch a surface along itself. ``"quadratic"`` adds the
+        second-order terms (taper, bend); ``"taper"`` adds only a taper
+        about the reference's stalk axis (:func:`_taper_basis` about
+        :func:`_concavity_axis`: the
+        cross-sections widen or narrow along the axis), which fruit vary by
+        and an affine map cannot take up; ``"auto"`` takes the quadratic map
+        for elongated references (``ELONGATED``) and the taper for round
+        ones. Measured, round fruit (same benchmark), taper against affine:
+        dense error apple 1.97 / 2.31 -> 0.83 / 1.33 mm (upright / random),
+        pepper 1.64 / 2.05 -> 0.93 / 1.47 mm, stalk tips within 0.1 mm
+        (about the principal axis that stands apart instead of the
+        concavity axis: apple 1.50 / 1.90 mm);
+        the full quadratic map: apple 1.22 / 1.51 but stalk tip 3.0 / 3.2 ->
+        3.7 / 4.0 mm, pepper 3.21 / 3.04 mm (its terms along the axis slide
+        the surface up or down the sides).
+        Measured with ``benchmarks/registration.py`` (4 targets per class
+        and pose), affine against ``"none"``: dense correspondence error
+        apple 2.8 -> 2.4 mm (upright) and 3.6 -> 3.2 mm (random pose),
+        pepper (random) 4.6 -> 2.6 mm, banana 5.9 -> 3.0 mm; but the apples'
+        stalk-tip error 2.1 -> 3.9 mm and zucchini 41 -> 49 mm. Quadratic,
+        for zucchini: 24 mm, then 13.6 mm once the map started from matched
+        centroids and had ``warp_prior``.
+    warp_ridge : float or "auto", default: "auto"
+        Damping of the warp's Gauss-Newton steps, relative to the mean
+        diagonal of the normal equations. ``"auto"``: ``ROUND_RIDGE`` (weak)
+        for a round reference without lobes, whose warp then also finds the
+        turn about the stalk axis, ``LOBED_RIDGE`` otherwise (see there).
+    warp_prior : float, default: 0.01
+        Weight, relative to the same diagonal, of a penalty pulling the
+        quadratic terms of the warp towards zero. The sides of an elongated
+        fruit barely constrain sliding along its length, and a free quadratic
+        slides the middle of a zucchini to match a different neck or club
+        (measured, 8 zucchini: dense error 4.6 -> 2.9 mm on average over the
+        six bent ones; banana 1.7 -> 1.3 mm; pear 1.1 -> 1.5 mm).
+    final_beta : float or None, default: 0.1
+        Stiffness of the closing step that lands matched vertices on the
+        target (``None``: no closing step).
+    multiresolution : bool, default: True
+        Run stiff iterations on the coarse level (much faster; see module
+        notes). ``False`` runs every iteration on the full reference.
+    """
+
+    n_iterations: int = 30
+    beta_start: float = 50.0
+    beta_end: float = 1.0
+    max_angle: float = 30.0
+    distance_factor: float = 20.0
+    distance_floor: float = 5.0
+    check_crossings: bool = True
+    tolerance: float = 1e-3
+    max_iterations: int = 50
+    orientation: str = "axis"
+    end_contrast: float = 0.15
+    axis_turns: int = 4
+    search_iterations: int = 6
+    search_finalists: int = 3
+    orientation_rank: int = 0
+    twists: int = 0
+    search_affine: bool = True
+    search_taper: bool | str = "auto"
+    coverage_check: bool = True
+    rigid_steps: bool = True
+    affine: str = "none"
+    warp: str = "auto"
+    warp_ridge: float | str = "auto"
+    warp_prior: float = 0.01
+    final_beta: float | None = 0.1
+    multiresolution: bool = True
+    up: tuple | None = None
+
+    def __post_init__(self) -> None:
+        if self.n_iterations < 1:
+            raise ValueError(f"n_iterations must be >= 1, got {self.n_iterations}")
+        if not (self.beta_start > 0 and self.beta_end > 0):
+            raise ValueError("beta_start and beta_end must be positive")
+        if not 0 < self.max_angle <= 180:
+            raise ValueError(f"max_angle must lie in (0, 180] degrees, got {self.max_angle}")
+        if self.distance_factor <= 0:
+            raise ValueError("distance_factor must be positive")
+        if self.distance_floor < 0:
+            raise ValueError("distance_floor must be >= 0")
+        if self.max_iterations < self.n_iterations:
+            raise ValueError("max_iterations must be at least n_iterations")
+        if self.orientation not in ("axis", "search", "pca", "none"):
+            raise ValueError(f"orientation must be 'axis', 'search', 'pca' or 'none', got {self.orientation!r}")
+        if not 0 <= self.end_contrast <= 1:
+            raise ValueError(f"end_contrast must lie in [0, 1], got {self.end_contrast}")
+        if self.axis_turns < 1:
+            raise ValueError(f"axis_turns must be >= 1, got {self.axis_turns}")
+        if self.affine not in ("stiff", "all", "none"):
+            raise ValueError(f"affine must be 'stiff', 'all' or 'none', got {self.affine!r}")
+        if self.warp not in ("auto", "none", "affine", "taper", "quadratic"):
+            raise ValueError(f"warp must be 'auto', 'affine', 'taper', 'quadratic' or 'none', got {self.warp!r}")
+        if self.search_finalists < 1:
+            raise ValueError(f"search_finalists must be >= 1, got {self.search_finalists}")
+        if self.orientation_rank < 0:
+            raise ValueError(f"orientation_rank must be >= 0, got {self.orientation_rank}")
+        if self.twists < 0:
+            raise ValueError(f"twists must be >= 0, got {self.twists}")
+        if self.search_taper not in ("auto", True, False):
+            raise ValueError(f"search_taper must be 'auto', True or False, got {self.search_taper!r}")
+        if self.warp_ridge != "auto" and not (isinstance(self.warp_ridge, (int, float)) and self.warp_ridge >= 0):
+            raise ValueError(f"warp_ridge must be 'auto' or a number >= 0, got {self.warp_ridge!r}")
+        if self.warp_prior < 0:
+            raise ValueError("warp_prior must be >= 0")
+        if self.final_beta is not None and self.final_beta <= 0:
+            raise ValueError("final_beta must be positive or None")
+        if self.up is not None:
+            u = np.asarray(self.up, dtype=np.float64).reshape(-1)
+            if u.shape != (3,) or not np.isfinite(u).all() or not np.linalg.norm(u) > 0:
+                raise ValueError(f"up must be 3 finite numbers, not all zero, got {self.up!r}")
+            # a plain tuple of unit length: the same hint always reads (and fingerprints) the same
+            object.__setattr__(self, "up", tuple(float(x) for x in u / np.linalg.norm(u)))
+
+    def betas(self) -> np.ndarray:
+        """The linear stiffness schedule, ``(n_iterations,)``."""
+        return np.linspace(self.beta_start, self.beta_end, self.n_iterations)
+
+
+def heuristics() -> dict:
+    """Every heuristic constant of the registration and of :func:`hortishape.align.fruit_axis`, by name.
+
+    A build's resume fingerprint holds them, so that work done with other
+    constants is not taken for this one's.
+
+    Returns
+    -------
+    dict of str to int, float or tuple
+
+    Examples
+    --------
+    >>> h = heuristics()
+    >>> h["SEARCH_VERTICES"], h["align.END_CONE"]
+    (30000, 30.0)
+    """
+    from .. import align
+
+    def constants(module) -> dict:
+        return {k: v for k, v in vars(module).items()
+                if k.isupper() and not k.startswith("_") and isinstance(v, (int, float, tuple))}
+
+    out = constants(sys.modules[__name__])
+    out.update({f"align.{k}": v for k, v in constants(align).items()})
+    return dict(sorted(out.items()))

@@ -1,0 +1,316 @@
+"""The coordinator: :func:`register` runs the stages of :mod:`hortishape.registration` in order."""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import replace
+from typing import Callable
+
+import numpy as np
+
+from ..align import apply_transform, rigid_fit
+from ..errors import ConvergenceWarning, MeshError
+from ..mesh import Mesh
+from .config import LANDMARK_SPREAD, UNCOVERED_EDGES, UNCOVERED_MAX, COARSE_MIN_BETA, COARSE_ANGLE_SLACK, RegistrationConfig
+from .correspondences import (
+    TargetSurface,
+    _landmark_pairs,
+    _match,
+    _max_distance,
+    _nearest_vertices,
+    _uncovered_fraction,
+    prepare_target,
+)
+from .elastic import _anchored, _iterate, _rigid_part, _solve_pcg, _State
+from .folds import _repair_folds, _unfold_step
+from .orientation import _choose_orientation, _Orientation, _refined_start, _search_taper, _up_hint
+from .result import IterationRecord, Registration, RegistrationPlan
+from .template import Template, _coarse_to_fine, prepare_reference
+from .warp import _fit_warp, _warp_kind, _warp_ridge
+
+
+def _check_units(reference: np.ndarray, target: np.ndarray) -> None:
+    def size(v: np.ndarray) -> float:
+        return float(np.sqrt(((v - v.mean(axis=0)) ** 2).sum(axis=1).mean()))
+
+    ratio = size(target) / max(size(reference), 1e-300)
+    if not 0.2 <= ratio <= 5.0:
+        hint = " (is one of them in metres? hortishape works in millimetres)" if (
+            ratio < 0.01 or ratio > 100
+        ) else ""
+        raise MeshError(
+            f"target is {ratio:.3g} times the size of the reference{hint}; "
+            "scale it before registering"
+        )
+
+
+def register(
+    reference: Mesh | Template,
+    target: Mesh | TargetSurface,
+    config: RegistrationConfig | None = None,
+    *,
+    initial_transform=None,
+    reference_up=None,
+    target_up=None,
+    reference_landmarks=None,
+    target_landmarks=None,
+    callback: Callable[[IterationRecord], None] | None = None,
+) -> Registration:
+    """Register a reference surface elastically onto a target (RN-ICP-T, eq. 8).
+
+    Parameters
+    ----------
+    reference : Mesh or Template
+        The reference (template) surface, uniformly sampled (see
+        :func:`prepare_reference`; a ``Mesh`` is prepared on each call, which
+        costs a coarse remesh, a few seconds for 30k vertices).
+    target : Mesh or TargetSurface
+        Closed single-component target surface in mm (e.g. a marching-cubes
+        surface of a CT scan), in any pose.
+    config : RegistrationConfig, optional
+        Parameters; default: the paper's.
+    initial_transform : (4, 4) array_like, optional
+        Start from this reference -> target transform instead of searching
+        (the orientation search is skipped).
+    reference_up, target_up : (3,) array_like, optional
+        A known anatomical axis (e.g. towards the stalk) in reference and
+        target coordinates: orientations that put the reference's one more
+        than ``UP_TOLERANCE`` degrees from the target's are excluded (see
+        ``up`` in :class:`RegistrationConfig`, the default for both). Give
+        both or neither.
+    reference_landmarks, target_landmarks : mapping of str to (3,) array_like, optional
+        Named points (e.g. ``"stalk"``, ``"calyx"``) on the reference, in its
+        coordinates, and on the target, in the target's; the names in both
+        are used. Three or more not on one line fix the orientation (their
+        rigid fit; no search), two fix the axis through them as ``up``
+        does; and the reference vertex nearest each is pulled onto the
+        target's point in every iteration, whatever the rays find there.
+    callback : callable, optional
+        Called with each :class:`IterationRecord` as it is logged (progress).
+        When ``coverage_check`` registers again, the second registration's
+        records follow the first's (its ``iteration`` starts from 0 again).
+
+    Returns
+    -------
+    Registration
+
+    Raises
+    ------
+    MeshError
+        If either surface is open, non-manifold or has several components,
+        the reference has degenerate triangles, or their sizes differ by more
+        than 5x (e.g. a target in metres against a reference in mm).
+
+    Warns
+    -----
+    ConvergenceWarning
+        If ``max_iterations`` is reached before the convergence test passes.
+
+    Examples
+    --------
+    >>> import trimesh
+    >>> s = trimesh.creation.icosphere(4, radius=40.0)
+    >>> ref = prepare_reference(Mesh(s.vertices, s.faces), coarse_vertices=600)
+    >>> tgt = Mesh(s.vertices * [1.1, 1.0, 0.9] + [5.0, 0.0, 0.0], s.faces)
+    >>> reg = register(ref, tgt, RegistrationConfig(orientation="pca"))
+    >>> bool(np.abs(np.linalg.norm((reg.vertices - [5, 0, 0]) / [44, 40, 36], axis=1) - 1).max() < 0.01)
+    True
+    """
+    t_start = time.perf_counter()
+    cfg = config if config is not None else RegistrationConfig()
+    template = reference if isinstance(reference, Template) else prepare_reference(reference)
+    tgt = target if isinstance(target, TargetSurface) else prepare_target(target)
+    _check_units(template.mesh.vertices, tgt.mesh.vertices)
+    fine = template.level("fine")
+    coarse = template.level("coarse")
+
+    # --- initial alignment ---------------------------------------------------
+    pairs = _landmark_pairs(reference_landmarks, target_landmarks)
+    if pairs is not None and initial_transform is None and cfg.orientation != "none":
+        p, q = pairs
+        centred = p - p.mean(axis=0)
+        sv = np.linalg.svd(centred, compute_uv=False) if len(p) >= 3 else np.zeros(2)
+        if len(p) >= 3 and sv[1] > LANDMARK_SPREAD * sv[0]:
+            initial_transform = rigid_fit(p, q)
+        elif len(p) >= 2 and reference_up is None:
+            reference_up, target_up = p[0] - p[-1], q[0] - q[-1]
+    if reference_up is None and target_up is None and cfg.up is not None:
+        reference_up = target_up = cfg.up
+    plan = plan_registration(template, cfg, given=initial_transform is not None)
+    if initial_transform is not None:
+        orient = _Orientation(np.asarray(initial_transform, dtype=np.float64).reshape(4, 4), np.zeros(0), -1, "",
+                             float("nan"))
+    elif cfg.orientation == "none":
+        orient = _Orientation(np.eye(4), np.zeros(0), -1, "", float("nan"))
+    else:
+        orient = _choose_orientation(template, tgt, cfg, plan, _up_hint(reference_up, target_up))
+    def run(t0: np.ndarray, chosen: int) -> Registration:
+        """The registration from the rigid placement ``t0`` (search candidate ``chosen``)."""
+        log: list[IterationRecord] = []
+
+        def record(it: int, level: str, beta: float, d: float, kept: float, t0: float) -> None:
+            rec = IterationRecord(it, level, float(beta), float(d), float(kept), time.perf_counter() - t0)
+            log.append(rec)
+            if callback is not None:
+                callback(rec)
+
+        # the undeformed reference in the target's frame: rigidly placed, then
+        # (optionally) through the global polynomial map; the loop's global steps
+        # and elastic displacements start from here
+        base_c = apply_transform(t0, coarse.vertices)
+        base_f = apply_transform(t0, fine.vertices)
+        warp_affine = np.eye(4)
+        warp = None
+        if plan.warp != "none":
+            warp = _fit_warp(coarse, base_c, tgt, cfg, plan.warp, ridge=plan.warp_ridge)
+        if warp is not None:
+            base_c, base_f = warp(base_c), warp(base_f)
+            warp_affine = warp.affine(apply_transform(t0, fine.vertices))
+
+        anchors = {} if pairs is None else {
+            name: (_nearest_vertices(lev.vertices, pairs[0]), pairs[1]) for name, lev in (("coarse", coarse), ("fine", fine))
+        }
+
+        # --- schedule ------------------------------------------------------------
+        betas = cfg.betas()
+        ratio = fine.edge_length / coarse.edge_length
+        on_coarse = cfg.multiresolution and template.coarse is not template.mesh
+        state = _State((base_c if on_coarse else base_f).copy(), np.eye(4))
+        level_name = "coarse" if on_coarse else "fine"
+        # filter (c) only on the fine level: a stiff coarse surface does not fold
+        # back on itself, and the filter costs a ray scene of the source per step
+        cfg_coarse = replace(cfg, check_crossings=False, max_angle=min(cfg.max_angle + COARSE_ANGLE_SLACK, 90.0))
+        converged = False
+        it = 0
+        prev_d = np.inf
+        while it < cfg.max_iterations:
+            t_it = time.perf_counter()
+            beta = betas[it] if it < len(betas) else cfg.beta_end
+            if level_name == "coarse" and beta * ratio < COARSE_MIN_BETA:
+                # switch to the full-resolution reference for the elastic end game
+                state = _State(_coarse_to_fine(template, state, base_c, base_f), state.transform, state.prev_distance)
+                level_name = "fine"
+            lev = coarse if level_name == "coarse" else fine
+            beta_level = beta * (ratio if level_name == "coarse" else 1.0)
+            d_t, kept = _iterate(
+                lev,
+                state,
+                tgt,
+                beta_level,
+                cfg if level_name == "fine" else cfg_coarse,
+                use_pcg=level_name == "fine",
+                rigid=cfg.rigid_steps,
+                affine=cfg.affine == "all" or (cfg.affine == "stiff" and beta * ratio >= COARSE_MIN_BETA),
+                prolong=template.prolongation() if on_coarse else None,
+                anchors=anchors.get(level_name),
+            )
+            record(it, level_name, beta, d_t, kept, t_it)
+            if not np.isfinite(d_t):
+                raise MeshError(
+                    "registration lost the target: fewer than 3 correspondences "
+                    "(are the surfaces far apart or in different units?)"
+                )
+            it += 1
+            if it >= len(betas) and np.isfinite(prev_d):
+                change = abs(d_t - prev_d)
+                # the paper's relative test, or a change below `tolerance` edge
+                # lengths: once the surface sits on the target d_t keeps halving
+                # and the relative test alone would never pass
+                if change < cfg.tolerance * d_t or change < cfg.tolerance * fine.edge_length:
+                    converged = True
+                    break
+            prev_d = d_t
+        if level_name == "coarse":  # only if the schedule never reached fine stiffness
+            state = _State(_coarse_to_fine(template, state, base_c, base_f), state.transform, state.prev_distance)
+        if not converged:
+            warnings.warn(
+                f"registration stopped at max_iterations={cfg.max_iterations} before "
+                f"|d_t - d_t-1| / d_t < {cfg.tolerance}",
+                ConvergenceWarning,
+                stacklevel=3,
+            )
+
+        # --- closing step: land matched vertices on the target -------------------
+        if cfg.final_beta is not None:
+            t_it = time.perf_counter()
+            old = state.positions
+            corr = _match(old, fine.faces, tgt, cfg, max_distance=_max_distance(cfg, state.prev_distance, fine),
+                          check_crossings=cfg.check_crossings, edge_length=fine.edge_length)
+            found, points = _anchored(corr.found, corr.points, anchors.get("fine"))
+            w = found.astype(np.float64)
+            rhs = np.where(found[:, None], points - old, 0.0)
+            x = _solve_pcg(fine.laplacian, cfg.final_beta, w, rhs, rhs, tol=1e-8)
+            state.positions = _unfold_step(fine.faces, old, old + x)
+            record(it, "final", cfg.final_beta, corr.mean_distance, corr.kept_fraction, t_it)
+        placed = apply_transform(state.transform, base_f)
+        state.positions = _repair_folds(fine, placed, state.positions)
+
+        verts = state.positions
+        verts.flags.writeable = False
+        placed.flags.writeable = False
+        total = state.transform @ warp_affine @ t0
+        return Registration(
+            verts,
+            template.mesh.faces,
+            _rigid_part(total, template.mesh.vertices),
+            tuple(log),
+            converged,
+            orient.scores,
+            chosen,
+            time.perf_counter() - t_start,
+            affine=total,
+            placed=placed,
+            orientation_confidence=orient.confidence,
+            orientation_ends=orient.ends,
+            plan=plan,
+        )
+
+    reg = run(orient.transform, orient.chosen)
+    if cfg.coverage_check and orient.alternative is not None:
+        uncovered = _uncovered_fraction(reg, tgt, UNCOVERED_EDGES * fine.edge_length)
+        if uncovered > UNCOVERED_MAX:
+            # a part of the scan the registered surface does not reach (its
+            # stalk, when the reference came out upside down): try the best
+            # candidate turned well away from this one and keep the one that
+            # covers more (see ``coverage_check``)
+            alt = run(_refined_start(template, tgt, orient.alternative, cfg, plan), orient.alternative_index)
+            if _uncovered_fraction(alt, tgt, UNCOVERED_EDGES * fine.edge_length) < uncovered:
+                reg = alt
+            reg = replace(reg, seconds=time.perf_counter() - t_start)
+    return reg
+
+
+def plan_registration(template: Template, config: RegistrationConfig | None = None, *,
+                      given: bool = False) -> RegistrationPlan:
+    """Resolve the ``"auto"`` options of ``config`` for the reference ``template`` (see :class:`RegistrationPlan`).
+
+    Parameters
+    ----------
+    template : Template
+        The prepared reference (:func:`prepare_reference`).
+    config : RegistrationConfig, optional
+        Default: the paper's.
+    given : bool, default: False
+        The orientation is given (an ``initial_transform`` or three landmarks).
+
+    Returns
+    -------
+    RegistrationPlan
+
+    Examples
+    --------
+    >>> import trimesh
+    >>> s = trimesh.creation.icosphere(3, radius=40.0)
+    >>> t = prepare_reference(Mesh(s.vertices * [1.0, 1.0, 2.0], s.faces), coarse_vertices=300)
+    >>> plan_registration(t).warp
+    'quadratic'
+    """
+    cfg = config if config is not None else RegistrationConfig()
+    warp = _warp_kind(cfg.warp, template.mesh.vertices)
+    return RegistrationPlan(
+        orientation="given" if given else cfg.orientation,
+        search_taper=_search_taper(cfg, template.level("search").vertices),
+        warp=warp,
+        warp_ridge=_warp_ridge(cfg, warp, template.level("coarse")),
+    )
