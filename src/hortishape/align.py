@@ -424,6 +424,10 @@ CAVITY_DEPTH = 0.05
 HULL_VERTICES = 5000
 #: Surface samples (at most) that the turned surface is compared with.
 TREE_POINTS = 20_000
+#: The first sweep over trial axes reads distances off a grid of cells this
+#: many to the fruit's RMS radius (the few best axes are then compared by
+#: exact distances).
+GRID_CELLS = 25
 #: A cavity that covers less than this fraction of the surface does not make
 #: an axis hypothesis of its own.
 CAVITY_MIN_AREA = 0.005
@@ -495,6 +499,31 @@ def _turned(points: np.ndarray, axes: np.ndarray, angles) -> np.ndarray:
         cross = np.cross(axes[:, None, :], points[None, :, :])  # (k, n, 3)
         out.append(c * points[None] + s * cross + (1 - c) * dot.T[:, :, None] * axes[:, None, :])
     return np.concatenate(out, axis=1)
+
+
+class _DistanceGrid:
+    """Distances to a point set, capped at ``bound``, on a grid of ``cell``-sized voxels (trilinear between nodes).
+
+    Within about a cell of the exact distance, at a hundredth of the cost of
+    a k-d tree query per point once the grid is made.
+    """
+
+    def __init__(self, points: np.ndarray, bound: float, cell: float) -> None:
+        from scipy.ndimage import distance_transform_edt
+
+        self.origin = points.min(axis=0) - bound - cell
+        shape = np.ceil((points.max(axis=0) + bound + cell - self.origin) / cell).astype(int) + 1
+        occupied = np.ones(shape, dtype=bool)
+        idx = np.rint((points - self.origin) / cell).astype(int)
+        occupied[tuple(idx.T)] = False
+        self.values = np.minimum(distance_transform_edt(occupied) * cell, bound)
+        self.cell, self.bound = cell, bound
+
+    def __call__(self, q: np.ndarray) -> np.ndarray:
+        from scipy.ndimage import map_coordinates
+
+        return map_coordinates(self.values, ((q - self.origin) / self.cell).T, order=1, mode="constant",
+                               cval=self.bound)
 
 
 def _hull_depth(vertices: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -616,9 +645,12 @@ def fruit_axis(
         axis = vectors[:, 0]
         best = float(costs(axis[None], p)[0])
     else:
-        # all directions with a third of the samples, then the best few with all
+        # all directions with a third of the samples (their distances read
+        # off a grid: it only ranks them), then the best few with all
         dirs = _fibonacci_hemisphere(n_directions)
-        c = costs(dirs, p[: max(n_samples // 3, 1)])
+        grid = _DistanceGrid(tree.data, bound, scale / GRID_CELLS)
+        sub = p[: max(n_samples // 3, 1)]
+        c = grid(_turned(sub, dirs, SYMMETRY_TURNS).reshape(-1, 3)).reshape(len(dirs), -1).mean(axis=1)
         dirs = dirs[np.argsort(c)[:5]]
         c = costs(dirs, p)
         axis, best = refine(dirs[int(np.argmin(c))], float(c.min()))
