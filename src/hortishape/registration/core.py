@@ -22,11 +22,11 @@ from .correspondences import (
     _uncovered_fraction,
     prepare_target,
 )
-from .elastic import _anchored, _iterate, _rigid_part, _solve_pcg, _State
+from .elastic import _anchored, _coarse_to_fine, _iterate, _rigid_part, _solve_pcg, _State
 from .folds import _repair_folds, _unfold_step
 from .orientation import _choose_orientation, _Orientation, _refined_start, _search_taper, _up_hint
 from .result import IterationRecord, Registration, RegistrationPlan
-from .template import Template, _coarse_to_fine, prepare_reference
+from .template import Template, prepare_reference
 from .warp import _fit_warp, _warp_kind, _warp_ridge
 
 

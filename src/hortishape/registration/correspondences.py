@@ -20,18 +20,14 @@ Embree (``embreex``) when available: 30k rays cost about 10 ms.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..mesh import Mesh
 from ..surface import check_closed_surface, vertex_normals
-from .config import CROSSING_MIN_EDGES
-
-if TYPE_CHECKING:
-    from .config import RegistrationConfig
-    from .result import Registration
-    from .template import _Level
+from .config import CROSSING_MIN_EDGES, RegistrationConfig
+from .result import Registration
+from .template import _Level
 
 __all__ = [
     "CROSSING",

@@ -9,17 +9,15 @@ on the fine one.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.sparse as sp
 
 from ..align import apply_transform, rigid_fit, rigid_transform, rotation_about
+from ..surface import barycentric_interpolate
+from .config import RegistrationConfig
 from .correspondences import TargetSurface, _match, _max_distance
-
-if TYPE_CHECKING:
-    from .config import RegistrationConfig
-    from .template import _Level
+from .template import Template, _Level
 
 
 def _solve_direct(level: _Level, beta: float, w: np.ndarray, rhs: np.ndarray) -> np.ndarray:
@@ -244,3 +242,17 @@ def _rigid_part(affine: np.ndarray, points: np.ndarray) -> np.ndarray:
         r = u @ np.diag([1.0, 1.0, -1.0]) @ vt
     c = points.mean(axis=0)
     return rigid_transform(r, apply_transform(affine, c[None])[0] - r @ c)
+
+
+def _coarse_to_fine(template: Template, coarse_state: _State, base_c: np.ndarray, base_f: np.ndarray) -> np.ndarray:
+    """Fine vertex positions from the coarse displacement (barycentric transfer).
+
+    ``base_c`` and ``base_f`` are the undeformed coarse and fine levels where
+    the loop started; the state's transform has moved them since.
+    """
+    t = coarse_state.transform
+    disp = coarse_state.positions - apply_transform(t, base_c)
+    disp_f = barycentric_interpolate(
+        disp, template.coarse.faces, template.coarse_face_index, template.coarse_barycentric
+    )
+    return apply_transform(t, base_f) + disp_f

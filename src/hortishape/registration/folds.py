@@ -2,15 +2,11 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 import scipy.sparse.linalg as spla
 
 from ..surface import face_normals
-
-if TYPE_CHECKING:
-    from .template import _Level
+from .template import _face_pairs, _Level
 
 
 def _unfold_step(faces: np.ndarray, old: np.ndarray, new: np.ndarray, *, max_rounds: int = 10) -> np.ndarray:
@@ -24,16 +20,6 @@ def _unfold_step(faces: np.ndarray, old: np.ndarray, new: np.ndarray, *, max_rou
         idx = np.unique(faces[flipped].ravel())
         out[idx] = old[idx]
     return out
-
-
-def _face_pairs(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The two faces on each edge of a closed manifold surface, ``(a, b)``."""
-    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
-    owner = np.tile(np.arange(len(faces)), 3)
-    order = np.lexsort((edges[:, 1], edges[:, 0]))
-    edges, owner = edges[order], owner[order]
-    pair = (edges[1:] == edges[:-1]).all(axis=1)  # each edge twice, adjacent after sorting
-    return owner[:-1][pair], owner[1:][pair]
 
 
 def _folded_faces(faces: np.ndarray, placed: np.ndarray, positions: np.ndarray, pairs=None) -> np.ndarray:

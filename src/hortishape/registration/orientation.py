@@ -6,7 +6,6 @@ See the package notes (:mod:`hortishape.registration`), step 1.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -14,22 +13,19 @@ from ..align import (
     FruitAxis,
     apply_transform,
     axis_alignments,
+    candidate_alignments,
     fruit_axis,
     principal_axes,
     rigid_transform,
     rotation_about,
     rotation_angle,
-    candidate_alignments,
 )
-from .config import ALTERNATIVE_TURN, MAX_REFINE_TURN, SEARCH_VERTICES, UP_TOLERANCE
+from .config import ALTERNATIVE_TURN, MAX_REFINE_TURN, SEARCH_VERTICES, UP_TOLERANCE, RegistrationConfig
 from .correspondences import TargetSurface, _match
 from .elastic import _iterate, _point_to_plane_step, _rigid_part, _State
+from .result import RegistrationPlan
+from .template import Template, _Level
 from .warp import _warp_kind
-
-if TYPE_CHECKING:
-    from .config import RegistrationConfig
-    from .result import RegistrationPlan
-    from .template import Template, _Level
 
 
 def _target_axis(target: TargetSurface) -> FruitAxis:

@@ -3,19 +3,24 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.sparse as sp
 
-from ..mesh import Mesh
-from ..surface import barycentric_interpolate, check_closed_surface, closest_points, remesh
-from ..align import FruitAxis, apply_transform, fruit_axis
+from ..align import FruitAxis, fruit_axis
 from ..errors import MeshError
-from .folds import _face_pairs
+from ..mesh import Mesh
+from ..surface import check_closed_surface, closest_points, remesh
 
-if TYPE_CHECKING:
-    from .elastic import _State
+
+def _face_pairs(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The two faces on each edge of a closed manifold surface, ``(a, b)``."""
+    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    owner = np.tile(np.arange(len(faces)), 3)
+    order = np.lexsort((edges[:, 1], edges[:, 0]))
+    edges, owner = edges[order], owner[order]
+    pair = (edges[1:] == edges[:-1]).all(axis=1)  # each edge twice, adjacent after sorting
+    return owner[:-1][pair], owner[1:][pair]
 
 
 class _Factor:
@@ -204,17 +209,3 @@ def prepare_reference(
     search = remesh(coarse, n_search).mesh if n_search < coarse.n_vertices else coarse
     cp = closest_points(coarse, fine.vertices)
     return Template(fine, coarse, cp.face_index, cp.barycentric, search, src_fi, src_bc)
-
-
-def _coarse_to_fine(template: Template, coarse_state: _State, base_c: np.ndarray, base_f: np.ndarray) -> np.ndarray:
-    """Fine vertex positions from the coarse displacement (barycentric transfer).
-
-    ``base_c`` and ``base_f`` are the undeformed coarse and fine levels where
-    the loop started; the state's transform has moved them since.
-    """
-    t = coarse_state.transform
-    disp = coarse_state.positions - apply_transform(t, base_c)
-    disp_f = barycentric_interpolate(
-        disp, template.coarse.faces, template.coarse_face_index, template.coarse_barycentric
-    )
-    return apply_transform(t, base_f) + disp_f

@@ -3,19 +3,15 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..align import _axis_frame, principal_axes
 from ..mesh import Mesh
 from ..surface import barycentric_interpolate, closest_points, face_normals, vertex_normals
-from .config import ELONGATED, LOBED, LOBED_RIDGE, ROUND_RIDGE, WARP_MIN_GAIN
+from .config import ELONGATED, LOBED, LOBED_RIDGE, ROUND_RIDGE, WARP_MIN_GAIN, RegistrationConfig
 from .correspondences import TargetSurface, _match
-
-if TYPE_CHECKING:
-    from .config import RegistrationConfig
-    from .template import _Level
+from .template import _Level
 
 
 @dataclass(frozen=True)
