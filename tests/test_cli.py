@@ -163,3 +163,28 @@ def test_up_option_reaches_the_configuration_and_its_help_states_the_tolerance()
     args = sub.parse_args(["ref.ply", "a.ply", "--out", "o", "--up", "0", "0", "3"])
     assert _registration_config(args).up == (0.0, 0.0, 1.0)
     assert _registration_config(sub.parse_args(["ref.ply", "a.ply", "--out", "o"])).up is None
+
+
+def test_convert_and_sample_take_a_model_scalismo_wrote(tmp_path, capsys):
+    from pathlib import Path
+
+    import numpy as np
+
+    from hortishape.model import ShapeModel
+    from hortishape.statismo import model_format
+
+    scalismo = Path(__file__).parent / "data" / "scalismo" / "asmData_model.h5"
+    out = tmp_path / "model.json"
+    assert main(["convert", str(scalismo), str(out)]) == 0
+    assert "1400 points, 2800 triangles, 50 modes" in capsys.readouterr().out
+    assert model_format(out) == "json"
+    assert main(["convert", str(out), str(tmp_path / "again.bin"), "--format", "hdf5"]) == 0
+    np.testing.assert_array_equal(ShapeModel.load(tmp_path / "again.bin").components_,
+                                  ShapeModel.load(scalismo).components_)
+    assert main(["sample", str(out), "2", "--out", str(tmp_path / "s"), "--seed", "1", "--no-picture"]) == 0
+    assert len(list((tmp_path / "s").glob("sample_*.ply"))) == 2
+    # a point-set model: said plainly, no traceback
+    ShapeModel().fit(np.random.default_rng(0).normal(size=(5, 8, 3))).save(tmp_path / "points.h5")
+    capsys.readouterr()
+    assert main(["sample", str(tmp_path / "points.h5"), "2", "--out", str(tmp_path / "p")]) == 1
+    assert "point-set model (no triangles)" in capsys.readouterr().err

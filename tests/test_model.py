@@ -448,7 +448,7 @@ def test_load_errors(tmp_path):
     with pytest.raises(HortishapeError, match="no such file"):
         ShapeModel.load(tmp_path / "missing.h5")
     (tmp_path / "text.h5").write_text("not hdf5")
-    with pytest.raises(HortishapeError, match="not an HDF5"):
+    with pytest.raises(HortishapeError, match="neither an HDF5 nor an HDF5-JSON"):
         ShapeModel.load(tmp_path / "text.h5")
     with h5py.File(tmp_path / "empty.h5", "w") as f:
         f["x"] = 1

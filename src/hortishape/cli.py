@@ -508,10 +508,15 @@ def _run_build(args) -> int:
     return 0
 
 
-def _load_model(path: Path):
+def _load_model(path: Path, command: str | None = None):
+    """The model at ``path``; for a ``command`` that makes surfaces, only one with triangles."""
     from .model import ShapeModel
 
-    return ShapeModel.load(path)
+    model = ShapeModel.load(path)
+    if command is not None and model.faces_ is None:
+        raise HortishapeError(f"{path}: a point-set model (no triangles): '{command}' makes surfaces and needs "
+                              "a triangle-mesh model")
+    return model
 
 
 def _add_sample(sub) -> None:
@@ -522,7 +527,7 @@ def _add_sample(sub) -> None:
                      "deviations (paper section 3.2, Fig. 8). Writes DIR/sample_000.ply ... and "
                      "DIR/samples.png."),
         epilog=EPILOG, formatter_class=_Formatter)
-    p.add_argument("model", type=Path, metavar="MODEL", help="model file (model.h5)")
+    p.add_argument("model", type=Path, metavar="MODEL", help="model file (model.h5; Statismo or Scalismo, HDF5 or HDF5-JSON)")
     p.add_argument("n", type=_positive_int, metavar="N", help="number of shapes")
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
     p.add_argument("--modes", type=_positive_int, default=5, help="modes to vary (the paper: 5)")
@@ -535,7 +540,7 @@ def _add_sample(sub) -> None:
 def _run_sample(args) -> int:
     from .demo import write_samples
 
-    model = _load_model(args.model)
+    model = _load_model(args.model, "sample")
     paths, pic = write_samples(model, args.out, args.n, modes=args.modes, truncate=args.truncate,
                                random_state=args.seed, picture=not args.no_picture)
     print(f"wrote {len(paths)} samples to {args.out}" + (f" (picture: {pic})" if pic else ""))
@@ -550,7 +555,7 @@ def _add_modes(sub) -> None:
                      "view (DIR/modes.png, the paper's Fig. 7). The pictures show the model in its own "
                      "frame with +z up: that of the first scan, so stalk up when the scans stood upright."),
         epilog=EPILOG, formatter_class=_Formatter)
-    p.add_argument("model", type=Path, metavar="MODEL", help="model file (model.h5)")
+    p.add_argument("model", type=Path, metavar="MODEL", help="model file (model.h5; Statismo or Scalismo, HDF5 or HDF5-JSON)")
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
     p.add_argument("--modes", type=_positive_int, default=3, help="number of modes")
     p.add_argument("--sd", type=float, default=3.0, help="standard deviations either side of the mean")
@@ -560,7 +565,7 @@ def _add_modes(sub) -> None:
 def _run_modes(args) -> int:
     from .report import render_modes, write_mode_meshes
 
-    model = _load_model(args.model)
+    model = _load_model(args.model, "modes")
     n = min(args.modes, model.n_components_)
     paths = write_mode_meshes(model, args.out, n_modes=n, sd=args.sd)
     pic = render_modes(model, Path(args.out) / "modes.png", n_modes=n, sd=args.sd)
@@ -576,7 +581,7 @@ def _add_fit(sub) -> None:
                      "points. Prints b (in standard deviations), the Mahalanobis distance and the residual "
                      "distances, and writes the reconstruction in the scan's coordinates."),
         epilog=EPILOG, formatter_class=_Formatter)
-    p.add_argument("model", type=Path, metavar="MODEL", help="model file (model.h5)")
+    p.add_argument("model", type=Path, metavar="MODEL", help="model file (model.h5; Statismo or Scalismo, HDF5 or HDF5-JSON)")
     p.add_argument("scan", type=Path, metavar="SCAN", help="the new scan (mesh file, mm)")
     p.add_argument("--out", type=Path, default=None, metavar="FILE",
                    help="reconstruction mesh (default: <scan stem>_fit.ply beside the current folder)")
@@ -594,7 +599,7 @@ def _run_fit(args) -> int:
     from .pipeline import fit_scan
     from .units import read_scan
 
-    model = _load_model(args.model)
+    model = _load_model(args.model, "fit")
     scan = read_scan(args.scan, scale=args.scale)
     fit = fit_scan(model, scan.mesh, modes=args.modes, config=_registration_config(args))
     out = args.out or Path(f"{args.scan.stem}_fit.ply")
@@ -612,6 +617,30 @@ def _run_fit(args) -> int:
             "residual_mean_mm": fit.residual_mean, "residual_max_mm": fit.residual_max,
             "surface_mean_mm": fit.surface_mean, "surface_max_mm": fit.surface_max,
         }, indent=1))
+    return 0
+
+
+def _add_convert(sub) -> None:
+    p = sub.add_parser(
+        "convert", help="write a model file in the other form: HDF5 or HDF5-JSON (Scalismo 0.92+)",
+        description=("Read MODEL (hortishape's, Statismo's or Scalismo's; HDF5 or HDF5-JSON, told by its content) "
+                     "and write it to OUT in the Statismo v0.9 layout, as HDF5 (Statismo, Scalismo up to 0.91) or "
+                     "HDF5-JSON (Scalismo 0.92 and later, which read it only from a name ending in .json). "
+                     "The form is --format, else .json for a name ending in .json, else HDF5."),
+        epilog=EPILOG, formatter_class=_Formatter)
+    p.add_argument("model", type=Path, metavar="MODEL", help="model file")
+    p.add_argument("out", type=Path, metavar="OUT", help="the file to write")
+    p.add_argument("--format", choices=("hdf5", "json"), default=None, help="form of OUT (default: by its name)")
+    p.set_defaults(run=_run_convert)
+
+
+def _run_convert(args) -> int:
+    from .statismo import model_format
+
+    model = _load_model(args.model)
+    out = model.save(args.out, format=args.format)
+    print(f"wrote {out} ({model_format(out)}; {model.n_points_} points, "
+          f"{'no' if model.faces_ is None else len(model.faces_)} triangles, {model.n_components_} modes)")
     return 0
 
 
@@ -676,7 +705,7 @@ def _add_cad(sub) -> None:
             "exported in the scan's coordinates)."
         ),
         epilog=EPILOG, formatter_class=_Formatter)
-    p.add_argument("model", type=Path, metavar="MODEL", help="model file (model.h5)")
+    p.add_argument("model", type=Path, metavar="MODEL", help="model file (model.h5; Statismo or Scalismo, HDF5 or HDF5-JSON)")
     p.add_argument("--out", type=Path, action="append", required=True, metavar="FILE",
                    help="output file (.step, .stp, .iges, .igs or .json); repeat for several")
     p.add_argument("--grid", type=_positive_int, default=32, metavar="K",
@@ -723,9 +752,7 @@ def _run_cad(args) -> int:
     for out in args.out:
         if out.suffix.lower() not in (".step", ".stp", ".iges", ".igs", ".json"):
             raise HortishapeError(f"{out}: the output must end in .step, .stp, .iges, .igs or .json")
-    model = _load_model(args.model)
-    if model.faces_ is None:
-        raise HortishapeError(f"{args.model}: the model has no triangles; a CAD surface needs them")
+    model = _load_model(args.model, "cad")
     start = time.perf_counter()
     poles = find_poles(model.mean_, model.faces_, stalk=args.stalk, bottom=args.bottom)
     cad = BSplineModel(args.grid, poles=poles).fit(model)
@@ -880,7 +907,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 _COMMANDS = [_add_demo, _add_synth, _add_extract, _add_register, _add_build, _add_sample, _add_modes, _add_fit, _add_cad,
-             _add_evaluate]
+             _add_evaluate, _add_convert]
 
 
 def main(argv: Sequence[str] | None = None) -> int:

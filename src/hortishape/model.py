@@ -32,10 +32,8 @@ reads both its own files and plain Statismo/scalismo files.
 
 from __future__ import annotations
 
-import json
 import math
 import os
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -53,6 +51,7 @@ from .procrustes import (
     _fit_transforms,
     generalized_procrustes,
 )
+from .statismo import ModelData, read_model, write_model
 
 __all__ = ["ShapeFit", "ShapeModel", "fit_pose_and_shape"]
 
@@ -65,22 +64,6 @@ _RANK_RTOL = 1e-10
 # A mode whose cosine with uniform growth of the mean is below this gets its
 # sign from its largest entry instead (see ShapeModel.fit).
 _GROWTH_COS_MIN = 1e-6
-
-_FORMAT = "hortishape-shape-model"
-_FORMAT_VERSION = 1
-# Statismo 0.9 standard mesh representer (modules/VTK/src/vtkStandardMeshRepresenter.cxx):
-# the names "vtkPolyDataRepresenter" and "itkMeshRepresenter" are the legacy
-# (<= 0.8) representers that embed a VTK file instead of points and cells.
-_REPRESENTER_NAME = "vtkStandardMeshRepresenter"
-_REPRESENTER_VERSION = "1.0"
-_LEGACY_REPRESENTERS = ("vtkPolyDataRepresenter", "itkMeshRepresenter")
-
-
-def _hortishape_version() -> str:
-    from . import __version__
-
-    return __version__
-
 
 # --------------------------------------------------------------------------
 # The model
@@ -574,8 +557,8 @@ class ShapeModel:
 
     # ------------------------------------------------------------------ files
 
-    def save(self, path: str | os.PathLike) -> Path:
-        """Write the model to an HDF5 file (Statismo 0.9 layout plus ``/hortishape``), atomically.
+    def save(self, path: str | os.PathLike, *, format: str | None = None) -> Path:
+        """Write the model to a Statismo v0.9 file (plus ``/hortishape``), HDF5 or HDF5-JSON, atomically.
 
         Layout (``n`` points, ``m`` triangles, ``k`` modes, ``N`` training shapes):
 
@@ -600,12 +583,17 @@ class ShapeModel:
           ``procrustes``, ``n_components`` (JSON), ``build_time``.
 
         Strings in the Statismo part are fixed-length, null-terminated ASCII,
-        as Statismo's ``HDF5Utils`` writes them.
+        as Statismo's ``HDF5Utils`` writes them. The same layout as HDF5-JSON
+        (``format="json"``) is what Scalismo 0.92 and later read and write;
+        Scalismo tells the two apart by the name, so give such a file a name
+        ending in ``.json``. See :mod:`hortishape.statismo`.
 
         Parameters
         ----------
         path : str or os.PathLike
             Target file (conventionally ``model.h5``); its folder must exist.
+        format : {"hdf5", "json"}, optional
+            Default: ``"json"`` for a name ending in ``.json``, else ``"hdf5"``.
 
         Returns
         -------
@@ -620,90 +608,27 @@ class ShapeModel:
             If the file cannot be written.
         """
         self._check_fitted()
-        import h5py
+        return write_model(self._data(), path, format)
 
-        from .io import atomic_path
-
-        target = Path(path)
-        with atomic_path(target, HortishapeError) as tmp, h5py.File(tmp, "w") as f:
-            self._write_h5(f)
-        return target
-
-    def _write_h5(self, f) -> None:
-        import h5py
-
-        build_time = time.asctime()
-        k, d = self.components_.shape
-        names = self.names_ or tuple(f"shape_{i:03d}" for i in range(self.n_samples_ or 0))
-
-        version = f.create_group("version")
-        version.create_dataset("majorVersion", data=np.int32(0))
-        version.create_dataset("minorVersion", data=np.int32(9))
-
-        rep = f.create_group("representer")
-        _string_attribute(rep, "name", _REPRESENTER_NAME)
-        _string_attribute(rep, "version", _REPRESENTER_VERSION)
-        _string_attribute(rep, "datasetType", "POINT_SET" if self.faces_ is None else "POLYGON_MESH")
-        rep.create_dataset("points", data=np.ascontiguousarray(self.mean_.T, dtype=np.float32))
-        if self.faces_ is not None:
-            # int32, not Statismo's own uint32: Statismo converts any integer type on
-            # reading (H5::PredType::NATIVE_UINT), while scalismo's jhdf reader returns
-            # uint32 as Java long[][] and fails to cast it to the Int arrays it expects.
-            rep.create_dataset("cells", data=np.ascontiguousarray(self.faces_.T, dtype=np.int32))
-        rep.create_group("pointData")
-        rep.create_group("cellData")
-
-        model = f.create_group("model")
-        model.create_dataset("mean", data=self.mean_.reshape(-1).astype(np.float32))
-        model.create_dataset("pcaBasis", data=np.ascontiguousarray(self.components_.T, dtype=np.float32))
-        model.create_dataset("pcaVariance", data=self.explained_variance_.astype(np.float32))
-        model.create_dataset("noiseVariance", data=np.float32(self.noise_variance_))
-
-        info = f.create_group("modelinfo")
-        _string_dataset(info, "build-time", build_time)
-        if self.scores_ is not None:
-            info.create_dataset("scores", data=np.ascontiguousarray(self.scores_.T, dtype=np.float32))
-        else:  # Statismo's marker for "no scores"
-            info.create_dataset("scores", data=np.zeros((1, 1), dtype=np.float32))
-        builder = info.create_group("modelBuilder-0")
-        _string_dataset(builder, "builderName", "hortishape.ShapeModel")
-        _string_dataset(builder, "buildTime", build_time)
-        data_info = builder.create_group("dataInfo")
-        for i, name in enumerate(names):
-            _string_dataset(data_info, f"URI_{i}", name)
-        params = builder.create_group("parameters")
-        _string_dataset(params, "NoiseVariance", repr(self.noise_variance_))
-        _string_dataset(params, "NumberOfComponents", str(self.n_components_))
-        _string_dataset(params, "Procrustes", "true" if self.procrustes else "false")
-        _string_dataset(params, "Units", "mm")
-
-        h = f.create_group("hortishape")
-        h.attrs["format"] = _FORMAT
-        h.attrs["format_version"] = np.int32(_FORMAT_VERSION)
-        h.attrs["hortishape_version"] = _hortishape_version()
-        h.attrs["units"] = "mm"
-        h.attrs["procrustes"] = bool(self.procrustes)
-        h.attrs["n_components"] = json.dumps(self.n_components)
-        h.attrs["build_time"] = build_time
-        if self.n_samples_ is not None:
-            h.attrs["n_samples"] = np.int64(self.n_samples_)
-        h.create_dataset("mean", data=self.mean_)
-        h.create_dataset("components", data=self.components_)
-        h.create_dataset("explained_variance", data=self.explained_variance_)
-        h.create_dataset("total_variance", data=np.float64(self._total_variance))
-        h.create_dataset("noise_variance", data=np.float64(self.noise_variance_))
-        if self.scores_ is not None:
-            h.create_dataset("scores", data=self.scores_)
-        if self.faces_ is not None:
-            h.create_dataset("faces", data=self.faces_)
-        if self.names_ is not None:
-            h.create_dataset("names", data=list(self.names_), dtype=h5py.string_dtype())
-        if self.procrustes_transforms_ is not None:
-            h.create_dataset("procrustes_transforms", data=self.procrustes_transforms_)
+    def _data(self) -> ModelData:
+        return ModelData(
+            mean=self.mean_,
+            components=self.components_,
+            variances=self.explained_variance_,
+            total_variance=self._total_variance,
+            noise_variance=self.noise_variance_,
+            n_samples=self.n_samples_,
+            faces=self.faces_,
+            names=self.names_,
+            scores=self.scores_,
+            procrustes_transforms=self.procrustes_transforms_,
+            n_components=self.n_components,
+            procrustes=self.procrustes,
+        )
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "ShapeModel":
-        """Read a model file written by :meth:`save`, Statismo or scalismo.
+        """Read a model file written by :meth:`save`, Statismo or Scalismo: HDF5 or HDF5-JSON (told by its content).
 
         Files with a ``/hortishape`` group are read from its float64 copies;
         plain Statismo files (0.9 or 0.8 layout, standard mesh or point-set
@@ -722,7 +647,7 @@ class ShapeModel:
         Raises
         ------
         HortishapeError
-            If the file is missing, not HDF5, or not a usable model file.
+            If the file is missing, neither HDF5 nor HDF5-JSON, or not a usable model file.
 
         Examples
         --------
@@ -733,151 +658,19 @@ class ShapeModel:
         >>> bool(np.array_equal(ShapeModel.load(path).components_, model.components_))
         True
         """
-        import h5py
-
-        p = Path(path)
-        if not p.exists():
-            raise HortishapeError(f"{p}: no such file")
-        if p.is_dir():
-            raise HortishapeError(f"{p}: is a directory, not a model file")
-        try:
-            f = h5py.File(p, "r")
-        except OSError as exc:
-            raise HortishapeError(f"{p}: not an HDF5 model file ({exc})") from None
-        try:
-            with f:
-                if "hortishape" in f:
-                    return cls._from_hortishape(f, p)
-                return cls._from_statismo(f, p)
-        except (KeyError, ValueError, TypeError, OSError) as exc:
-            raise HortishapeError(f"{p}: unusable model file ({exc})") from None
-
-    @classmethod
-    def _from_hortishape(cls, f, path: Path) -> "ShapeModel":
-        h = f["hortishape"]
-        fmt = _attr_str(h.attrs.get("format", ""))
-        if fmt != _FORMAT:
-            raise HortishapeError(f"{path}: /hortishape is not a hortishape model (format {fmt!r})")
-        fv = int(h.attrs.get("format_version", 0))
-        if fv > _FORMAT_VERSION:
-            raise HortishapeError(
-                f"{path}: model format version {fv} is newer than this hortishape reads ({_FORMAT_VERSION}); "
-                "update hortishape"
-            )
-        for key in ("mean", "components", "explained_variance", "total_variance"):
-            if key not in h:
-                raise HortishapeError(f"{path}: /hortishape/{key} is missing")
-        mean = h["mean"][()]
-        components = h["components"][()]
-        variances = h["explained_variance"][()]
-        _check_loaded(path, mean, components, variances)
-        n_components = json.loads(_attr_str(h.attrs.get("n_components", "null")))
-        model = cls(n_components=n_components, procrustes=bool(h.attrs.get("procrustes", False)))
-        names = [_attr_str(s) for s in h["names"][()]] if "names" in h else None
+        data = read_model(path)
+        model = cls(n_components=data.n_components, procrustes=data.procrustes)
         model._set_fitted(
-            mean=mean,
-            components=components,
-            variances=variances,
-            total_variance=float(h["total_variance"][()]),
-            n_samples=int(h.attrs["n_samples"]) if "n_samples" in h.attrs else None,
-            faces=h["faces"][()] if "faces" in h else None,
-            names=names,
-            scores=h["scores"][()] if "scores" in h else None,
-            procrustes_transforms=h["procrustes_transforms"][()] if "procrustes_transforms" in h else None,
-            noise_variance=float(h["noise_variance"][()]) if "noise_variance" in h else None,
-        )
-        return model
-
-    @classmethod
-    def _from_statismo(cls, f, path: Path) -> "ShapeModel":
-        missing = [k for k in ("representer", "model/mean", "model/pcaBasis", "model/pcaVariance") if k not in f]
-        if missing:
-            raise HortishapeError(
-                f"{path}: not a Statismo model file (missing {', '.join('/' + m for m in missing)})"
-            )
-        rep = f["representer"]
-        rep_name = _attr_str(rep.attrs.get("name", ""))
-        if rep_name in _LEGACY_REPRESENTERS:
-            raise HortishapeError(
-                f"{path}: a Statismo file with the legacy representer {rep_name!r} (an embedded VTK file) "
-                "is not supported; convert it with a current Statismo or scalismo first"
-            )
-        if "points" not in rep:
-            raise HortishapeError(f"{path}: /representer/points is missing")
-        dataset_type = _attr_str(rep.attrs.get("datasetType", "POLYGON_MESH"))
-        if dataset_type not in ("POLYGON_MESH", "POINT_SET"):
-            raise HortishapeError(f"{path}: representer datasetType {dataset_type!r} is not a surface or point set")
-        if "version" in f:
-            major = int(f["version/majorVersion"][()])
-            minor = int(f["version/minorVersion"][()])
-        else:
-            major, minor = 0, 8
-        if (major, minor) not in ((0, 8), (0, 9)) and major != 1:
-            raise HortishapeError(f"{path}: unsupported Statismo file version {major}.{minor}")
-
-        mean = np.asarray(f["model/mean"][()], dtype=np.float64).reshape(-1)
-        basis = np.asarray(f["model/pcaBasis"][()], dtype=np.float64)
-        variances = np.asarray(f["model/pcaVariance"][()], dtype=np.float64).reshape(-1)
-        if basis.ndim != 2 or basis.shape != (mean.size, variances.size):
-            raise HortishapeError(
-                f"{path}: /model/pcaBasis has shape {basis.shape}, expected ({mean.size}, {variances.size})"
-            )
-        if (major, minor) == (0, 8):  # old files store U * sqrt(lambda)
-            sd = np.sqrt(np.where(variances > 0, variances, 1.0))
-            basis = basis / sd
-        if mean.size % 3:
-            raise HortishapeError(f"{path}: /model/mean has {mean.size} values, not 3 per point")
-        noise = float(np.asarray(f["model/noiseVariance"][()]).reshape(-1)[0]) if "model/noiseVariance" in f else 0.0
-        # keep the modes with positive variance, ordered by decreasing variance
-        n_file_modes = variances.size
-        keep = np.flatnonzero(variances > 0)
-        order = keep[np.argsort(-variances[keep], kind="stable")]
-        variances, components = variances[order], basis[:, order].T
-        mean_points = mean.reshape(-1, 3)
-        _check_loaded(path, mean_points, components, variances)
-
-        faces = None
-        if dataset_type == "POLYGON_MESH" and "cells" in rep:
-            cells = np.asarray(rep["cells"][()])
-            if cells.ndim != 2 or cells.shape[0] != 3:
-                raise HortishapeError(f"{path}: /representer/cells has shape {cells.shape}: not triangles (3, m)")
-            faces = cells.T.astype(np.int64)
-            try:
-                check_mesh(mean_points, faces, name=str(path))
-            except MeshError as exc:
-                raise HortishapeError(str(exc)) from None
-
-        scores = None
-        n_samples = None
-        names = None
-        if "modelinfo/scores" in f:
-            s = np.asarray(f["modelinfo/scores"][()], dtype=np.float64)
-            if s.ndim == 2 and s.shape[0] == n_file_modes and not (s.shape == (1, 1) and s[0, 0] == 0.0):
-                scores = s[order].T
-                n_samples = s.shape[1]
-        if "modelinfo/modelBuilder-0/dataInfo" in f:
-            di = f["modelinfo/modelBuilder-0/dataInfo"]
-            uris = sorted((k for k in di if k.startswith("URI_")), key=lambda k: int(k[4:]) if k[4:].isdigit() else 0)
-            if uris:
-                names = [_attr_str(di[k][()]) for k in uris]
-                if n_samples is None:
-                    n_samples = len(names)
-                elif len(names) != n_samples:
-                    names = None
-        d = mean.size
-        k = len(variances)
-        model = cls(n_components=k, procrustes=False)
-        model._set_fitted(
-            mean=mean_points,
-            components=components,
-            variances=variances,
-            total_variance=float(variances.sum()) + noise * (d - k),
-            n_samples=n_samples,
-            faces=faces,
-            names=names,
-            scores=scores,
-            procrustes_transforms=None,
-            noise_variance=noise,
+            mean=data.mean,
+            components=data.components,
+            variances=data.variances,
+            total_variance=data.total_variance,
+            n_samples=data.n_samples,
+            faces=data.faces,
+            names=data.names,
+            scores=data.scores,
+            procrustes_transforms=data.procrustes_transforms,
+            noise_variance=data.noise_variance,
         )
         return model
 
@@ -1177,46 +970,3 @@ def _flip_signs(components: np.ndarray, mean: np.ndarray) -> np.ndarray:
     sign = np.where(np.abs(cos) >= _GROWTH_COS_MIN, np.sign(cos), np.sign(big))
     sign[sign == 0] = 1.0
     return components * sign[:, None]
-
-
-def _check_loaded(path: Path, mean, components, variances) -> None:
-    mean = np.asarray(mean)
-    if mean.ndim != 2 or mean.shape[1] != 3 or mean.shape[0] == 0:
-        raise HortishapeError(f"{path}: the mean shape has shape {mean.shape}, expected (n, 3)")
-    if components.ndim != 2 or components.shape[1] != mean.size or components.shape[0] != len(variances):
-        raise HortishapeError(
-            f"{path}: the modes have shape {components.shape}, expected ({len(variances)}, {mean.size})"
-        )
-    if len(variances) == 0:
-        raise HortishapeError(f"{path}: the model has no modes with positive variance")
-    if not (np.isfinite(mean).all() and np.isfinite(components).all() and np.isfinite(variances).all()):
-        raise HortishapeError(f"{path}: the model holds NaN or infinite values")
-
-
-def _attr_str(value) -> str:
-    if isinstance(value, (bytes, np.bytes_)):
-        return value.decode("utf-8", "replace").rstrip("\x00")
-    if isinstance(value, np.ndarray) and value.shape == ():
-        return _attr_str(value[()])
-    return str(value)
-
-
-def _fixed_string(text: str):
-    """A null-terminated fixed-length ASCII string type and value, as Statismo's HDF5Utils writes."""
-    import h5py
-
-    raw = text.encode("utf-8")
-    tid = h5py.h5t.C_S1.copy()
-    tid.set_size(len(raw) + 1)
-    tid.set_strpad(h5py.h5t.STR_NULLTERM)
-    return np.array(raw, dtype=f"S{len(raw) + 1}"), h5py.Datatype(tid)
-
-
-def _string_attribute(obj, name: str, text: str) -> None:
-    value, dtype = _fixed_string(text)
-    obj.attrs.create(name, value, dtype=dtype)
-
-
-def _string_dataset(group, name: str, text: str) -> None:
-    value, dtype = _fixed_string(text)
-    group.create_dataset(name, data=value, dtype=dtype)
