@@ -178,6 +178,8 @@ def test_bad_model_directories(built, tmp_path):
     out, *_ = built
     with pytest.raises(HortishapeError, match="not a built model directory"):
         evaluate_model(tmp_path, write=False)
+    with pytest.raises(HortishapeError, match="a model file, not the folder.*training shapes"):
+        evaluate_model(out / "model.h5", write=False)
     with pytest.raises(HortishapeError, match="at most 3"):
         evaluate_model(out, modes=4, write=False)
     broken = tmp_path / "broken"

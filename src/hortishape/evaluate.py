@@ -301,6 +301,13 @@ def _read_landmark_csv(p: Path) -> dict[str, dict[str, np.ndarray]]:
 
 def _read_summary(model_dir: Path) -> dict:
     path = model_dir / "summary.json"
+    if model_dir.is_file():
+        # a model file alone (Statismo's, Scalismo's) holds no training shapes
+        raise HortishapeError(
+            f"{model_dir}: a model file, not the folder 'hortishape build' writes: generalization, "
+            "specificity and the error maps need the training shapes the model was built from, which a model "
+            "file does not hold (its modes and variances: 'hortishape modes', 'sample')"
+        )
     if not model_dir.is_dir():
         raise HortishapeError(f"{model_dir}: not a folder")
     if not path.is_file() or not (model_dir / "model.h5").is_file():
