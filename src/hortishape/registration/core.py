@@ -12,22 +12,14 @@ import numpy as np
 from ..align import apply_transform, rigid_fit
 from ..errors import ConvergenceWarning, MeshError
 from ..mesh import Mesh
-from .config import LANDMARK_SPREAD, UNCOVERED_EDGES, UNCOVERED_MAX, COARSE_MIN_BETA, COARSE_ANGLE_SLACK, RegistrationConfig
-from .correspondences import (
-    TargetSurface,
-    _landmark_pairs,
-    _match,
-    _max_distance,
-    _nearest_vertices,
-    _uncovered_fraction,
-    prepare_target,
-)
-from .elastic import _anchored, _coarse_to_fine, _iterate, _rigid_part, _solve_pcg, _State
-from .folds import _repair_folds, _unfold_step
+from .config import LANDMARK_SPREAD, UNCOVERED_EDGES, UNCOVERED_MAX, RegistrationConfig
+from .correspondences import TargetSurface, _landmark_pairs, _nearest_vertices, _uncovered_fraction, prepare_target
+from .elastic import _deform, _land, _rigid_part
+from .folds import _repair_folds
 from .orientation import _choose_orientation, _Orientation, _refined_start, _search_taper, _up_hint
 from .result import IterationRecord, Registration, RegistrationPlan
 from .template import Template, prepare_reference
-from .warp import _fit_warp, _warp_kind, _warp_ridge
+from .warp import _placed, _warp_kind, _warp_ridge
 
 
 def _check_units(reference: np.ndarray, target: np.ndarray) -> None:
@@ -145,84 +137,24 @@ def register(
         orient = _Orientation(np.eye(4), np.zeros(0), -1, "", float("nan"))
     else:
         orient = _choose_orientation(template, tgt, cfg, plan, _up_hint(reference_up, target_up))
+
+    # --- elastic registration from there ------------------------------------
+    anchors = {} if pairs is None else {
+        name: (_nearest_vertices(lev.vertices, pairs[0]), pairs[1]) for name, lev in (("coarse", coarse), ("fine", fine))
+    }
+
     def run(t0: np.ndarray, chosen: int) -> Registration:
         """The registration from the rigid placement ``t0`` (search candidate ``chosen``)."""
         log: list[IterationRecord] = []
 
-        def record(it: int, level: str, beta: float, d: float, kept: float, t0: float) -> None:
-            rec = IterationRecord(it, level, float(beta), float(d), float(kept), time.perf_counter() - t0)
+        def record(it: int, level: str, beta: float, d: float, kept: float, since: float) -> None:
+            rec = IterationRecord(it, level, float(beta), float(d), float(kept), time.perf_counter() - since)
             log.append(rec)
             if callback is not None:
                 callback(rec)
 
-        # the undeformed reference in the target's frame: rigidly placed, then
-        # (optionally) through the global polynomial map; the loop's global steps
-        # and elastic displacements start from here
-        base_c = apply_transform(t0, coarse.vertices)
-        base_f = apply_transform(t0, fine.vertices)
-        warp_affine = np.eye(4)
-        warp = None
-        if plan.warp != "none":
-            warp = _fit_warp(coarse, base_c, tgt, cfg, plan.warp, ridge=plan.warp_ridge)
-        if warp is not None:
-            base_c, base_f = warp(base_c), warp(base_f)
-            warp_affine = warp.affine(apply_transform(t0, fine.vertices))
-
-        anchors = {} if pairs is None else {
-            name: (_nearest_vertices(lev.vertices, pairs[0]), pairs[1]) for name, lev in (("coarse", coarse), ("fine", fine))
-        }
-
-        # --- schedule ------------------------------------------------------------
-        betas = cfg.betas()
-        ratio = fine.edge_length / coarse.edge_length
-        on_coarse = cfg.multiresolution and template.coarse is not template.mesh
-        state = _State((base_c if on_coarse else base_f).copy(), np.eye(4))
-        level_name = "coarse" if on_coarse else "fine"
-        # filter (c) only on the fine level: a stiff coarse surface does not fold
-        # back on itself, and the filter costs a ray scene of the source per step
-        cfg_coarse = replace(cfg, check_crossings=False, max_angle=min(cfg.max_angle + COARSE_ANGLE_SLACK, 90.0))
-        converged = False
-        it = 0
-        prev_d = np.inf
-        while it < cfg.max_iterations:
-            t_it = time.perf_counter()
-            beta = betas[it] if it < len(betas) else cfg.beta_end
-            if level_name == "coarse" and beta * ratio < COARSE_MIN_BETA:
-                # switch to the full-resolution reference for the elastic end game
-                state = _State(_coarse_to_fine(template, state, base_c, base_f), state.transform, state.prev_distance)
-                level_name = "fine"
-            lev = coarse if level_name == "coarse" else fine
-            beta_level = beta * (ratio if level_name == "coarse" else 1.0)
-            d_t, kept = _iterate(
-                lev,
-                state,
-                tgt,
-                beta_level,
-                cfg if level_name == "fine" else cfg_coarse,
-                use_pcg=level_name == "fine",
-                rigid=cfg.rigid_steps,
-                affine=cfg.affine == "all" or (cfg.affine == "stiff" and beta * ratio >= COARSE_MIN_BETA),
-                prolong=template.prolongation() if on_coarse else None,
-                anchors=anchors.get(level_name),
-            )
-            record(it, level_name, beta, d_t, kept, t_it)
-            if not np.isfinite(d_t):
-                raise MeshError(
-                    "registration lost the target: fewer than 3 correspondences "
-                    "(are the surfaces far apart or in different units?)"
-                )
-            it += 1
-            if it >= len(betas) and np.isfinite(prev_d):
-                change = abs(d_t - prev_d)
-                # the paper's relative test, or a change below `tolerance` edge
-                # lengths: once the surface sits on the target d_t keeps halving
-                # and the relative test alone would never pass
-                if change < cfg.tolerance * d_t or change < cfg.tolerance * fine.edge_length:
-                    converged = True
-                    break
-            prev_d = d_t
-        if level_name == "coarse":  # only if the schedule never reached fine stiffness
-            state = _State(_coarse_to_fine(template, state, base_c, base_f), state.transform, state.prev_distance)
+        base_c, base_f, warp_affine = _placed(template, tgt, t0, cfg, plan)
+        state, converged, it = _deform(template, tgt, base_c, base_f, cfg, anchors, record)
         if not converged:
             warnings.warn(
                 f"registration stopped at max_iterations={cfg.max_iterations} before "
@@ -230,23 +162,12 @@ def register(
                 ConvergenceWarning,
                 stacklevel=3,
             )
-
-        # --- closing step: land matched vertices on the target -------------------
         if cfg.final_beta is not None:
             t_it = time.perf_counter()
-            old = state.positions
-            corr = _match(old, fine.faces, tgt, cfg, max_distance=_max_distance(cfg, state.prev_distance, fine),
-                          check_crossings=cfg.check_crossings, edge_length=fine.edge_length)
-            found, points = _anchored(corr.found, corr.points, anchors.get("fine"))
-            w = found.astype(np.float64)
-            rhs = np.where(found[:, None], points - old, 0.0)
-            x = _solve_pcg(fine.laplacian, cfg.final_beta, w, rhs, rhs, tol=1e-8)
-            state.positions = _unfold_step(fine.faces, old, old + x)
+            corr = _land(fine, state, tgt, cfg, anchors.get("fine"))
             record(it, "final", cfg.final_beta, corr.mean_distance, corr.kept_fraction, t_it)
         placed = apply_transform(state.transform, base_f)
-        state.positions = _repair_folds(fine, placed, state.positions)
-
-        verts = state.positions
+        verts = _repair_folds(fine, placed, state.positions)
         verts.flags.writeable = False
         placed.flags.writeable = False
         total = state.transform @ warp_affine @ t0

@@ -8,15 +8,18 @@ on the fine one.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import time
+from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.sparse as sp
 
 from ..align import apply_transform, rigid_fit, rigid_transform, rotation_about
+from ..errors import MeshError
 from ..surface import barycentric_interpolate
-from .config import RegistrationConfig
+from .config import COARSE_ANGLE_SLACK, COARSE_MIN_BETA, RegistrationConfig
 from .correspondences import TargetSurface, _match, _max_distance
+from .folds import _unfold_step
 from .template import Template, _Level
 
 
@@ -256,3 +259,84 @@ def _coarse_to_fine(template: Template, coarse_state: _State, base_c: np.ndarray
         disp, template.coarse.faces, template.coarse_face_index, template.coarse_barycentric
     )
     return apply_transform(t, base_f) + disp_f
+
+
+def _deform(template: Template, target: TargetSurface, base_c: np.ndarray, base_f: np.ndarray,
+            cfg: RegistrationConfig, anchors: dict, record) -> tuple[_State, bool, int]:
+    """RN-ICP-T iterations from the placed reference (``base_c``, ``base_f``) along the stiffness schedule.
+
+    Stiff iterations run on the coarse level, the rest on the fine one;
+    ``record(iteration, level, beta, d_t, kept, start_time)`` logs each.
+    Returns the fine level's state, whether the convergence test passed, and
+    the number of iterations.
+    """
+    fine = template.level("fine")
+    coarse = template.level("coarse")
+    betas = cfg.betas()
+    ratio = fine.edge_length / coarse.edge_length
+    on_coarse = cfg.multiresolution and template.coarse is not template.mesh
+    state = _State((base_c if on_coarse else base_f).copy(), np.eye(4))
+    level_name = "coarse" if on_coarse else "fine"
+    # filter (c) only on the fine level: a stiff coarse surface does not fold
+    # back on itself, and the filter costs a ray scene of the source per step
+    cfg_coarse = replace(cfg, check_crossings=False, max_angle=min(cfg.max_angle + COARSE_ANGLE_SLACK, 90.0))
+    converged = False
+    it = 0
+    prev_d = np.inf
+    while it < cfg.max_iterations:
+        t_it = time.perf_counter()
+        beta = betas[it] if it < len(betas) else cfg.beta_end
+        if level_name == "coarse" and beta * ratio < COARSE_MIN_BETA:
+            # switch to the full-resolution reference for the elastic end game
+            state = _State(_coarse_to_fine(template, state, base_c, base_f), state.transform, state.prev_distance)
+            level_name = "fine"
+        lev = coarse if level_name == "coarse" else fine
+        beta_level = beta * (ratio if level_name == "coarse" else 1.0)
+        d_t, kept = _iterate(
+            lev,
+            state,
+            target,
+            beta_level,
+            cfg if level_name == "fine" else cfg_coarse,
+            use_pcg=level_name == "fine",
+            rigid=cfg.rigid_steps,
+            affine=cfg.affine == "all" or (cfg.affine == "stiff" and beta * ratio >= COARSE_MIN_BETA),
+            prolong=template.prolongation() if on_coarse else None,
+            anchors=anchors.get(level_name),
+        )
+        record(it, level_name, beta, d_t, kept, t_it)
+        if not np.isfinite(d_t):
+            raise MeshError(
+                "registration lost the target: fewer than 3 correspondences "
+                "(are the surfaces far apart or in different units?)"
+            )
+        it += 1
+        if it >= len(betas) and np.isfinite(prev_d):
+            change = abs(d_t - prev_d)
+            # the paper's relative test, or a change below `tolerance` edge
+            # lengths: once the surface sits on the target d_t keeps halving
+            # and the relative test alone would never pass
+            if change < cfg.tolerance * d_t or change < cfg.tolerance * fine.edge_length:
+                converged = True
+                break
+        prev_d = d_t
+    if level_name == "coarse":  # only if the schedule never reached fine stiffness
+        state = _State(_coarse_to_fine(template, state, base_c, base_f), state.transform, state.prev_distance)
+    return state, converged, it
+
+
+def _land(fine: _Level, state: _State, target: TargetSurface, cfg: RegistrationConfig, anchors=None):
+    """The closing step: matched vertices moved (almost) onto the target with ``final_beta``, in place.
+
+    A triangle that would fold in the step keeps its vertices' previous
+    positions. Returns the step's correspondences (for the log).
+    """
+    old = state.positions
+    corr = _match(old, fine.faces, target, cfg, max_distance=_max_distance(cfg, state.prev_distance, fine),
+                  check_crossings=cfg.check_crossings, edge_length=fine.edge_length)
+    found, points = _anchored(corr.found, corr.points, anchors)
+    w = found.astype(np.float64)
+    rhs = np.where(found[:, None], points - old, 0.0)
+    x = _solve_pcg(fine.laplacian, cfg.final_beta, w, rhs, rhs, tol=1e-8)
+    state.positions = _unfold_step(fine.faces, old, old + x)
+    return corr

@@ -6,12 +6,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..align import _axis_frame, principal_axes
+from ..align import _axis_frame, apply_transform, principal_axes
 from ..mesh import Mesh
 from ..surface import barycentric_interpolate, closest_points, face_normals, vertex_normals
 from .config import ELONGATED, LOBED, LOBED_RIDGE, ROUND_RIDGE, WARP_MIN_GAIN, RegistrationConfig
 from .correspondences import TargetSurface, _match
-from .template import _Level
+from .result import RegistrationPlan
+from .template import Template, _Level
 
 
 @dataclass(frozen=True)
@@ -278,3 +279,20 @@ def _fit_warp(
     if not start - end > WARP_MIN_GAIN * scale:
         return None  # not worth it (see WARP_MIN_GAIN)
     return warp
+
+
+def _placed(template: Template, target: TargetSurface, t0: np.ndarray, cfg: RegistrationConfig,
+            plan: RegistrationPlan) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The undeformed reference in the target's frame: coarse and fine levels, and the warp's affine part.
+
+    Rigidly placed by ``t0``, then through the global polynomial warp of
+    ``plan.warp`` if one fits (the loop's global steps and elastic
+    displacements start from here).
+    """
+    coarse, fine = template.level("coarse"), template.level("fine")
+    base_c = apply_transform(t0, coarse.vertices)
+    base_f = apply_transform(t0, fine.vertices)
+    warp = None if plan.warp == "none" else _fit_warp(coarse, base_c, target, cfg, plan.warp, ridge=plan.warp_ridge)
+    if warp is None:
+        return base_c, base_f, np.eye(4)
+    return warp(base_c), warp(base_f), warp.affine(base_f)
