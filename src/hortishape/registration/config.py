@@ -223,7 +223,7 @@ class RegistrationConfig:
         start; affine ICP 12 degrees. With ``benchmarks/registration.py`` (4
         targets x 2 poses x 5 classes), ``False`` against ``True``: wrong
         orientations (more than 45 degrees off) 5 -> 2 of 40 (the two left
-        are one straight zucchini, see the module notes); dense
+        are one straight zucchini, see the package notes); dense
         correspondence error pepper 15.4 / 2.4 -> 1.7 / 2.4 mm (upright /
         random pose), pear 8.3 / 8.3 -> 1.8 / 1.8 mm, apple 2.7 / 3.3 ->
         2.6 / 3.3 mm. Refining from the affine map itself instead of its
@@ -334,8 +334,8 @@ class RegistrationConfig:
         Stiffness of the closing step that lands matched vertices on the
         target (``None``: no closing step).
     multiresolution : bool, default: True
-        Run stiff iterations on the coarse level (much faster; see module
-        notes). ``False`` runs every iteration on the full reference.
+        Run stiff iterations on the coarse level (much faster; see the
+        package notes). ``False`` runs every iteration on the full reference.
     """
 
     n_iterations: int = 30
