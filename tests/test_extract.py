@@ -7,7 +7,7 @@ import pytest
 from scipy.special import erf
 
 from hortishape import extract, synth
-from hortishape.cli import main
+from hortishape.cli import build_parser, main
 from hortishape.errors import VolumeError
 from hortishape.extract import (
     decimate,
@@ -405,6 +405,12 @@ def test_build_from_a_folder_of_volumes(volumes, tmp_path):
     assert result.names == ("ball_0", "ball_1", "ball_2")
     assert [p.endswith("not_a_scan.txt.ply") for p, _ in result.skipped] == [True]  # an open triangle
     assert result.model_path.is_file()
+    # the voxel size the error names as the fix is an option of build too
+    paths, _ = find_scans(volumes, tmp_path / "doubled", n_jobs=1, spacing=(1.6, 1.6, 1.6))
+    assert np.ptp(read_mesh(paths[1]).vertices, axis=0).max() == pytest.approx(
+        2 * np.ptp(read_mesh(tmp_path / "surfaces" / "ball_1.ply").vertices, axis=0).max(), rel=1e-6)
+    args = build_parser().parse_args(["build", str(volumes), "--out", "x", "--spacing", "0.8", "0.8", "0.8"])
+    assert args.spacing == [0.8, 0.8, 0.8]
 
 
 def test_spacing_sets_the_voxel_size_and_a_wrong_one_is_refused(volumes, tmp_path, capsys):

@@ -465,6 +465,9 @@ def _add_build(sub) -> None:
     p.add_argument("--jobs", type=_positive_int, default=None, metavar="J",
                    help="parallel registrations (default: all cores)")
     p.add_argument("--strict", action="store_true", help="stop at the first bad scan instead of skipping it")
+    p.add_argument("--spacing", type=_positive_float, nargs=3, default=None, metavar=("SX", "SY", "SZ"),
+                   help="voxel size along x, y, z in mm for the volumes in INPUT_DIR, in place of what their "
+                        "files say (as 'hortishape extract --spacing')")
     _add_landmarks(p)
     _add_scale(p)
     _add_registration_options(p)
@@ -502,7 +505,7 @@ def _run_build(args) -> int:
     result = build_model(
         args.input_dir, args.out, reference=args.reference, n_points=args.points, n_modes=args.modes,
         n_jobs=args.jobs, strict=args.strict, config=_registration_config(args), scaling=args.scaling,
-        progress=_stage_progress, scale=args.scale, landmarks=args.landmarks,
+        progress=_stage_progress, scale=args.scale, landmarks=args.landmarks, spacing=args.spacing,
     )
     _print_build(result)
     return 0

@@ -104,14 +104,17 @@ def find_meshes(folder) -> list[Path]:
 
 
 def find_scans(folder, out_dir, *, n_jobs: int | None = None, strict: bool = False,
-               progress: Callable[[int, str], Progress] | None = None) -> tuple[list[Path], list[tuple[str, str]]]:
+               progress: Callable[[int, str], Progress] | None = None,
+               spacing: Sequence[float] | None = None) -> tuple[list[Path], list[tuple[str, str]]]:
     """The scans in ``folder``: its mesh files and the surfaces of its CT volumes.
 
     Volumes (:func:`hortishape.extract.find_volumes`: MHA/MHD, NRRD, NIfTI,
     TIFF, DICOM or TIFF-slice folders) are extracted first, with the default
     settings, into ``out_dir/surfaces/<stem>.ply``
     (:func:`hortishape.extract.extract_files`); a volume already extracted
-    from the same bytes is not redone.
+    from the same bytes is not redone. ``spacing`` (mm along x, y, z)
+    replaces the voxel size the volume files give (see
+    :func:`hortishape.extract.extract_file`).
 
     Returns
     -------
@@ -140,7 +143,7 @@ def find_scans(folder, out_dir, *, n_jobs: int | None = None, strict: bool = Fal
     failed = []
     if volumes:
         results = extract_files(volumes, Path(out_dir) / "surfaces", n_jobs=n_jobs, strict=strict,
-                                progress=_stage(progress, len(volumes), "extract"))
+                                progress=_stage(progress, len(volumes), "extract"), spacing=spacing)
         files += [Path(r.mesh) for r in results if r.ok]
         failed = [(r.source, r.error) for r in results if not r.ok]
     return sorted(files, key=lambda p: p.name), failed
@@ -535,6 +538,7 @@ def build_model(
     progress: Callable[[int, str], Progress] | None = None,
     scale: float = 1.0,
     landmarks=None,
+    spacing: Sequence[float] | None = None,
 ) -> BuildResult:
     """Build a statistical shape model from a folder of scans (paper section 2.2.3).
 
@@ -595,6 +599,9 @@ def build_model(
         fix each scan's orientation and are pulled together (see
         :func:`register_files`); the second pass's reference points are the
         mean's vertices nearest the first reference's.
+    spacing : (3,) sequence of float, optional
+        Voxel size in mm (x, y, z) for the volumes in ``input_dir``, in place
+        of what their files say (see :func:`find_scans`).
 
     Returns
     -------
@@ -610,7 +617,7 @@ def build_model(
 
     start = time.perf_counter()
     out = Path(out_dir)
-    files, failed = find_scans(input_dir, out, n_jobs=n_jobs, strict=strict, progress=progress)
+    files, failed = find_scans(input_dir, out, n_jobs=n_jobs, strict=strict, progress=progress, spacing=spacing)
     checks = check_scans(files, scale=scale)
     skipped = failed + [(c.path, c.error) for c in checks if not c.ok]
     if strict and skipped:
