@@ -46,6 +46,9 @@ def main(argv=None) -> int:
     parser.add_argument("--points", type=int, default=30000)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--pose", default="upright", choices=["upright", "random"])
+    parser.add_argument("--family", default="standard",
+                        help="shape family (synth.PRODUCTS[product].families); the non-standard ones were never "
+                             "used for tuning")
     parser.add_argument("--modes", type=int, default=5, help="modes for the generalization figure")
     parser.add_argument("--jobs", type=int, default=None)
     parser.add_argument("--out", type=Path, default=None, help="work folder (default: a temporary one)")
@@ -61,10 +64,11 @@ def main(argv=None) -> int:
     work = args.out or Path(tempfile.mkdtemp(prefix="hortishape-bench-"))
     scans = work / "scans"
     t0 = time.perf_counter()
-    synth.write_population(args.product, args.n, scans, random_state=args.seed, pose=args.pose, n_jobs=args.jobs)
+    synth.write_population(args.product, args.n, scans, random_state=args.seed, pose=args.pose, n_jobs=args.jobs,
+                           family=args.family)
     t_synth = time.perf_counter() - t0
     n_vertices = [read_mesh(p).n_vertices for p in sorted(scans.glob("*.ply"))]
-    print(f"{args.n} synthetic {args.product}s ({args.pose}), {min(n_vertices):,}-{max(n_vertices):,} vertices, "
+    print(f"{args.n} synthetic {args.product}s ({args.pose}, family {args.family}), {min(n_vertices):,}-{max(n_vertices):,} vertices, "
           f"made in {t_synth:.1f} s")
 
     t0 = time.perf_counter()
