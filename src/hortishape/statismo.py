@@ -241,7 +241,7 @@ def _read_hdf5(p: Path) -> H5Tree:
 
 def _read_json(p: Path) -> H5Tree:
     try:
-        doc = json.loads(p.read_text(encoding="utf-8"))
+        doc = json.loads(p.read_text(encoding="utf-8-sig"))  # a byte-order mark is allowed
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise HortishapeError(f"{p}: not valid JSON ({exc})") from None
     if not isinstance(doc, dict) or "root" not in doc or "groups" not in doc:
