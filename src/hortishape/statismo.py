@@ -93,9 +93,7 @@ class H5Tree:
     def add(self, path: str, value) -> None:
         """Add a dataset (and the groups above it)."""
         self.datasets[path] = value
-        parts = path.strip("/").split("/")
-        for i in range(1, len(parts)):
-            self.groups.add("/" + "/".join(parts[:i]))
+        self.group(path.rsplit("/", 1)[0] or "/")
 
     def group(self, path: str) -> None:
         """Add an (empty) group and the groups above it."""
