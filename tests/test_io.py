@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import hortishape._files
 import hortishape.io as hio
 from hortishape.errors import MeshError, VolumeError
 from hortishape.io import (
@@ -162,7 +163,7 @@ def test_binary_stl_whose_header_starts_with_solid_is_read_as_binary(tmp_path):
     corners = np.array(
         [[[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[1, 0, 0], [1, 1, 0], [0, 1, 0]]], np.float32
     )
-    records = np.zeros(2, dtype=hio._STL_RECORD)
+    records = np.zeros(2, dtype=hio.stl._STL_RECORD)
     records["corners"] = corners
     path = tmp_path / "solid.stl"
     path.write_bytes(b"solid but binary".ljust(80) + np.uint32(2).tobytes() + records.tobytes())
@@ -588,7 +589,7 @@ def test_vtk_image_data_is_not_a_surface(tmp_path):
 
 
 def test_missing_vtk_package_gives_install_hint(tmp_path, shuffled_sphere, monkeypatch):
-    for name in [*hio._VTK_MODULES, "vtkmodules"]:
+    for name in [*hio.vtk_files._VTK_MODULES, "vtkmodules"]:
         monkeypatch.setitem(sys.modules, name, None)
     path = tmp_path / "x.vtp"
     path.write_text("<VTKFile/>")
@@ -653,7 +654,7 @@ def test_failed_write_leaves_target_untouched_and_no_temp_file(
     def deny(*args, **kwargs):
         raise PermissionError(13, "Permission denied")
 
-    monkeypatch.setattr(hio, "_floats_text", fail)  # fails half-way through writing
+    monkeypatch.setattr(hio.obj_off, "_floats_text", fail)  # fails half-way through writing
     with pytest.raises(RuntimeError, match="disk on fire"):
         write_mesh(target, shuffled_sphere)
     with pytest.raises(RuntimeError):
@@ -662,7 +663,7 @@ def test_failed_write_leaves_target_untouched_and_no_temp_file(
     assert target.read_text() == "old content"
 
     monkeypatch.undo()
-    monkeypatch.setattr(hio.os, "replace", deny)  # fails at the very end
+    monkeypatch.setattr(hortishape._files.os, "replace", deny)  # fails at the very end
     with pytest.raises(
         MeshError, match=_starts_with_path(target, "cannot write .*Permission denied")
     ):
@@ -840,7 +841,7 @@ def test_failed_volume_write_leaves_no_file(tmp_path, monkeypatch):
     def fail(*args, **kwargs):
         raise RuntimeError("disk on fire")
 
-    monkeypatch.setattr(hio, "_metaimage_text", fail)
+    monkeypatch.setattr(hio.metaimage, "_metaimage_text", fail)
     for name in ("a.mha", "a.mhd"):
         with pytest.raises(RuntimeError):
             write_volume(tmp_path / name, _asymmetric_volume())

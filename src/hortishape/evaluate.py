@@ -43,12 +43,13 @@ import csv
 import json
 import math
 import time
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from ._files import Progress
 from ._rng import RandomState
 from .errors import HortishapeError
 from .metrics import (
@@ -75,7 +76,6 @@ __all__ = [
     "write_evaluation",
 ]
 
-Progress = Callable[[Iterable], Iterable]
 
 
 @dataclass(frozen=True)

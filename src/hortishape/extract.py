@@ -56,14 +56,15 @@ import time
 import traceback
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Callable, Iterable, Sequence
+from typing import Sequence
 
 import numpy as np
 
 from . import __version__
 from ._batch import raise_failed, run_jobs
 from .errors import HortishapeError, MeshError, VolumeError
-from .io import Volume, atomic_path, read_volume, volume_formats, write_mesh
+from ._files import Progress, atomic_path
+from .io import Volume, read_volume, volume_formats, write_mesh
 from .mesh import Mesh
 from .units import PLAUSIBLE_EXTENT_MM, SizeCheck, check_size, likely_unit
 
@@ -83,7 +84,6 @@ __all__ = [
     "volume_stem",
 ]
 
-Progress = Callable[[Iterable], Iterable]
 
 # Voxels per slab: labels (int32) and intensities (float32) of a slab take
 # 16 MB each, small next to a CT volume.

@@ -21,21 +21,21 @@ import traceback
 import warnings
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Callable, Iterable, Mapping, Sequence
+from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
 from ._batch import raise_failed, run_jobs
 from .align import rigid_transform, rotation_about
 from .errors import ConvergenceWarning, HortishapeError
-from .io import atomic_path, is_mesh_file, mesh_formats, read_mesh, write_mesh
+from ._files import Progress, atomic_text
+from .io import is_mesh_file, mesh_formats, read_mesh, write_mesh
 from .mesh import Mesh
 from .registration import Registration, RegistrationConfig, Template, heuristics, prepare_reference, register
 from .units import PLAUSIBLE_EXTENT_MM, SizeCheck, read_scan
 
 __all__ = ["InstanceResult", "find_meshes", "find_scans", "register_files", "template_fingerprint"]
 
-Progress = Callable[[Iterable], Iterable]
 
 
 @dataclass(frozen=True)
@@ -190,11 +190,6 @@ def _init_worker(template: Template, config: RegistrationConfig, fingerprint: st
     os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 
-def _atomic_text(path: Path, text: str) -> None:
-    with atomic_path(path, HortishapeError) as tmp:
-        tmp.write_text(text)
-
-
 def _result_from_log(log: dict, source: Path, *, resumed: bool) -> InstanceResult:
     s = log["summary"]
     return InstanceResult(
@@ -287,7 +282,7 @@ def _register_file(job) -> InstanceResult:
             log["landmarks"] = sorted(set(landmarks) & set(reference_landmarks))
         write_mesh(out_dir / f"{source.stem}.ply", reg.mesh)
         # the log last: its presence with the right fingerprint marks the scan done
-        _atomic_text(out_dir / f"{source.stem}.json", json.dumps(_jsonable(log), indent=1))
+        atomic_text(out_dir / f"{source.stem}.json", json.dumps(_jsonable(log), indent=1), HortishapeError)
         return _result_from_log(log, source, resumed=False)
     except HortishapeError as exc:
         msg = str(exc)
@@ -714,7 +709,7 @@ def build_model(
         },
         "seconds": seconds,
     }
-    _atomic_text(out / "summary.json", json.dumps(_jsonable(summary), indent=1))
+    atomic_text(out / "summary.json", json.dumps(_jsonable(summary), indent=1), HortishapeError)
     return BuildResult(out, model_path, str(ref_path), tuple(names), tuple(skipped), tuple(first),
                        tuple(second), model.explained_variance_, model.n_points_, seconds, uncertain)
 

@@ -1018,7 +1018,7 @@ def _write_png(image: np.ndarray, target: Path) -> None:
     """Write ``image`` to ``target`` atomically (temporary file, then ``os.replace``)."""
     from PIL import Image
 
-    from .io import atomic_path
+    from ._files import atomic_path
 
     with atomic_path(target, MeshError) as tmp, open(tmp, "wb") as stream:
         Image.fromarray(np.ascontiguousarray(image, dtype=np.uint8)).save(stream, format="PNG")

@@ -326,7 +326,7 @@ def _figure(width_in: float, height_in: float):
 
 def _save(fig, path) -> Path:
     from .errors import HortishapeError
-    from .io import atomic_path
+    from ._files import atomic_path
 
     target = Path(path)
     if target.suffix.lower() != ".png":
@@ -680,7 +680,7 @@ def write_report(ev: "Evaluation", path: str | os.PathLike) -> Path:
 
     from . import __version__
     from .errors import HortishapeError
-    from .io import atomic_path
+    from ._files import atomic_path
 
     target = Path(path)
     files = dict(ev.files)

@@ -317,7 +317,7 @@ def write_tree(tree: H5Tree, path: str | os.PathLike, form: str = "hdf5") -> Pat
     >>> [read_tree(write_tree(t, d / f"m.{f}", f)).array("/model/mean").tolist() for f in FORMATS]
     [[0.0, 1.0, 2.0], [0.0, 1.0, 2.0]]
     """
-    from .io import atomic_path
+    from ._files import atomic_path
 
     if form not in FORMATS:
         raise ValueError(f"form must be one of {FORMATS}, got {form!r}")

@@ -1014,7 +1014,8 @@ def write_instance(instance: SyntheticInstance, out_dir, *, random_seed: int | N
     pathlib.Path
         The mesh file.
     """
-    from .io import atomic_path, write_mesh, write_volume
+    from ._files import atomic_path
+    from .io import write_mesh, write_volume
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
