@@ -109,6 +109,30 @@ def test_measures_and_their_files(built, evaluated):
     assert not [p for p in folder.iterdir() if p.name.startswith(".")]  # nothing half-written
 
 
+def test_shapes_in_memory_give_the_directory_figures_and_write_only_through_report(built, evaluated, tmp_path):
+    from hortishape.evaluate import evaluate_shapes
+    from hortishape.report import write_evaluation
+
+    out, scans, registered, faces = built
+    model = ShapeModel.load(out / "model.h5")
+    aligned = np.stack([read_mesh(out / "aligned" / f"{n}.ply").vertices for n in evaluated.names])
+    before = sorted(p.name for p in tmp_path.iterdir())
+    ev = evaluate_shapes(model, registered, aligned, faces, names=evaluated.names,
+                         scans=[scans / f"{n}.ply" for n in evaluated.names], n_samples=20, random_state=0)
+    assert sorted(p.name for p in tmp_path.iterdir()) == before and ev.files == {} and ev.model_dir is None
+    np.testing.assert_array_equal(ev.generalization.mean_sq, evaluated.generalization.mean_sq)
+    np.testing.assert_array_equal(ev.specificity.mean_mm, evaluated.specificity.mean_mm)
+    np.testing.assert_array_equal(ev.geometric_error.per_vertex_mm, evaluated.geometric_error.per_vertex_mm)
+    np.testing.assert_array_equal(ev.dimensions.per_shape, evaluated.dimensions.per_shape)
+    written = write_evaluation(ev, model, faces, tmp_path / "evaluation")
+    assert written.files["report"].is_file() and "(in memory)" in written.files["report"].read_text()
+    assert json.loads(written.files["metrics_json"].read_text())["model_dir"] is None
+    with pytest.raises(HortishapeError, match="at most 3"):
+        evaluate_shapes(model, registered, aligned, faces, names=evaluated.names, modes=4)
+    with pytest.raises(HortishapeError, match="registered shapes have shape"):
+        evaluate_shapes(model, registered[:, :10], aligned, faces, names=evaluated.names)
+
+
 def test_report_is_one_self_contained_page(evaluated):
     html = evaluated.files["report"].read_text()
     assert html.startswith("<!DOCTYPE html>") and html.rstrip().endswith("</html>")

@@ -1,7 +1,11 @@
-"""Evaluate a built model directory: the paper's quality measures, error maps and report.
+"""Evaluate a shape model: the paper's quality measures, error maps and report.
 
-:func:`evaluate_model` takes what ``hortishape build`` wrote (``OUT/model.h5``,
-``OUT/registered/``, ``OUT/aligned/``, ``OUT/summary.json``) and measures:
+:func:`evaluate_shapes` measures a model and its training shapes given as
+arrays (it reads only the scans, for the geometric error) and writes nothing;
+:func:`evaluate_model` reads what ``hortishape build`` wrote (``OUT/model.h5``,
+``OUT/registered/``, ``OUT/aligned/``, ``OUT/summary.json``; see
+:class:`hortishape.layout.ModelDir`), measures it and has
+:func:`hortishape.report.write_evaluation` write the files. The measures:
 
 - compactness C(m), generalization G(m) by leave-one-out and specificity
   S(m) (section 3.4, eqs. 14-16, Figs. 10-12), each for m = 1 .. M, both as
@@ -16,7 +20,7 @@
   ``<stem>.truth.json``;
 - the population's width, depth and height (Table 1).
 
-It writes them under ``OUT/evaluation/``: ``metrics.json`` and
+The report goes under ``OUT/evaluation/``: ``metrics.json`` and
 ``metrics.csv`` (for scripts and for comparing models), the error map as
 meshes (``error_map.ply`` with colours and the distances, ``error_map.vtk``
 with the distances as point data) and a picture, plots of the three
@@ -41,10 +45,9 @@ from __future__ import annotations
 
 import csv
 import json
-import math
 import time
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -52,128 +55,30 @@ import numpy as np
 from ._files import Progress
 from ._rng import RandomState
 from .errors import HortishapeError
+from .layout import ModelDir
 from .metrics import (
-    Compactness,
-    Dimensions,
-    Generalization,
-    LandmarkTransfer,
-    Specificity,
+    Evaluation,
+    GeometricError,
     compactness,
     dimensions,
     generalization,
+    geometric_error,
     specificity,
     transfer_landmarks,
 )
+from .report import metrics_csv, metrics_dict, write_evaluation
 
 __all__ = [
     "Evaluation",
     "GeometricError",
     "evaluate_model",
+    "evaluate_shapes",
     "geometric_error",
     "metrics_csv",
     "metrics_dict",
     "read_landmarks",
     "write_evaluation",
 ]
-
-
-
-@dataclass(frozen=True)
-class GeometricError:
-    """Distance of the registered surfaces to their scans (paper Fig. 6, Table 2).
-
-    Attributes
-    ----------
-    names : tuple of str
-        The instances measured (those whose scan was found).
-    per_instance_mm : (N,) float64 ndarray
-        Mean distance of each registered surface's vertices to its scan, mm.
-    max_mm : (N,) float64 ndarray
-        The largest of those distances per instance, mm.
-    per_vertex_mm : (n,) float64 ndarray
-        For every reference vertex, its distance to the scan averaged over the
-        instances: the error map, mm.
-    missing : tuple of (str, str)
-        ``(instance, reason)`` for every instance left out.
-    """
-
-    names: tuple
-    per_instance_mm: np.ndarray
-    max_mm: np.ndarray
-    per_vertex_mm: np.ndarray
-    missing: tuple = ()
-
-    @property
-    def mean_mm(self) -> float:
-        """Mean over the instances of their mean distance (Table 2), mm."""
-        return float(self.per_instance_mm.mean())
-
-    @property
-    def sd_mm(self) -> float:
-        """Standard deviation over the instances of their mean distance (Table 2), mm."""
-        return float(self.per_instance_mm.std(ddof=1)) if len(self.per_instance_mm) > 1 else math.nan
-
-
-@dataclass(frozen=True)
-class Evaluation:
-    """Everything :func:`evaluate_model` measured, and where it wrote it.
-
-    Attributes
-    ----------
-    model_dir : Path
-        The built model directory.
-    names : tuple of str
-        The model's instances, in order.
-    n_points : int
-        Vertices of the model's shapes.
-    compactness : Compactness
-    generalization : Generalization
-    specificity : Specificity
-    dimensions : Dimensions
-        Width, depth and height of every instance, in the model's frame.
-    geometric_error : GeometricError or None
-        None when no scan was found (see ``notes``).
-    landmarks : LandmarkTransfer or None
-        Rows in the order of ``names``; None without landmarks.
-    landmarks_source : str or None
-        Where the landmarks came from.
-    notes : tuple of str
-        What was skipped and why, in plain words.
-    uncertain_orientation : tuple of (str, float)
-        ``(name, confidence)`` of the instances the build named as of
-        uncertain orientation (``summary.json``), pictured in the report.
-    files : Mapping of str to Path
-        What was written: ``"report"``, ``"metrics_json"``, ``"metrics_csv"``,
-        ``"error_map_ply"``, ... (empty when nothing was written).
-    seconds : float
-        Wall time of the measures (and of the writing, when written).
-    timings : Mapping of str to float
-        Seconds per stage.
-    settings : Mapping of str to object
-        The options used (``n_samples``, ``truncate``, ``random_state``, ``scaling``).
-    """
-
-    model_dir: Path
-    names: tuple
-    n_points: int
-    compactness: Compactness
-    generalization: Generalization
-    specificity: Specificity
-    dimensions: Dimensions
-    geometric_error: GeometricError | None
-    landmarks: LandmarkTransfer | None
-    landmarks_source: str | None
-    notes: tuple
-    uncertain_orientation: tuple = ()
-    files: Mapping = field(default_factory=dict)
-    seconds: float = 0.0
-    timings: Mapping = field(default_factory=dict)
-    settings: Mapping = field(default_factory=dict)
-
-    @property
-    def modes(self) -> np.ndarray:
-        """The numbers of modes m every measure was evaluated at."""
-        return self.compactness.modes
 
 
 # --------------------------------------------------------------------------
@@ -300,7 +205,8 @@ def _read_landmark_csv(p: Path) -> dict[str, dict[str, np.ndarray]]:
 
 
 def _read_summary(model_dir: Path) -> dict:
-    path = model_dir / "summary.json"
+    layout = ModelDir(model_dir)
+    path = layout.summary
     if model_dir.is_file():
         # a model file alone (Statismo's, Scalismo's) holds no training shapes
         raise HortishapeError(
@@ -310,7 +216,7 @@ def _read_summary(model_dir: Path) -> dict:
         )
     if not model_dir.is_dir():
         raise HortishapeError(f"{model_dir}: not a folder")
-    if not path.is_file() or not (model_dir / "model.h5").is_file():
+    if not layout.is_built():
         raise HortishapeError(
             f"{model_dir}: not a built model directory (no summary.json and model.h5; run 'hortishape build')"
         )
@@ -348,55 +254,6 @@ def _sources(summary: Mapping) -> dict[str, str]:
     return out
 
 
-def geometric_error(
-    registered: np.ndarray,
-    faces: np.ndarray,
-    names,
-    scan_paths,
-    *,
-    progress: Progress | None = None,
-) -> GeometricError | None:
-    """Distance of each registered surface's vertices to its scan, and their average per vertex.
-
-    Parameters
-    ----------
-    registered : (N, n, 3) float64 ndarray
-        Registered surfaces, each in its scan's coordinates, mm.
-    faces : (m, 3) int64 ndarray
-    names : sequence of str
-        The N instances.
-    scan_paths : sequence of (path or None)
-        The scan of each instance; None where it was not found.
-    progress : callable, optional
-        Wraps the iterator over the instances.
-
-    Returns
-    -------
-    GeometricError or None
-        None when no scan could be read.
-    """
-    from .io import read_mesh
-    from .surface import closest_points
-
-    kept, dists, missing = [], [], []
-    items = list(zip(names, registered, scan_paths))
-    for name, vertices, path in (progress(items) if progress else items):
-        if path is None:
-            missing.append((name, "scan not found"))
-            continue
-        try:
-            scan = read_mesh(path)
-        except HortishapeError as exc:
-            missing.append((name, str(exc)))
-            continue
-        kept.append(name)
-        dists.append(closest_points(scan, vertices).distances)
-    if not kept:
-        return None
-    d = np.stack(dists)
-    return GeometricError(tuple(kept), d.mean(axis=1), d.max(axis=1), d.mean(axis=0), tuple(missing))
-
-
 def _landmark_array(marks: Mapping, names, notes: list[str], source: str):
     """(N, L, 3) array (NaN where missing) and the landmark names, from stem -> name -> xyz."""
     lm_names = sorted({k for n in names for k in marks.get(n, {})})
@@ -423,6 +280,236 @@ def _landmark_array(marks: Mapping, names, notes: list[str], source: str):
 # --------------------------------------------------------------------------
 
 
+def _check_modes(modes, n_shapes: int, n_components: int) -> int:
+    """The number of modes to evaluate: ``modes`` checked, or the largest possible."""
+    largest = min(n_shapes - 2, n_components)
+    if modes is None:
+        return largest
+    if isinstance(modes, bool) or int(modes) != modes or modes < 1:
+        raise HortishapeError(f"modes must be a positive whole number, got {modes!r}")
+    if modes > largest:
+        why = (f"a leave-one-out model of {n_shapes} instances has {n_shapes - 2} modes"
+               if largest == n_shapes - 2 else f"the model keeps {n_components} modes")
+        raise HortishapeError(f"--modes {modes} is too many: at most {largest} ({why})")
+    return int(modes)
+
+
+def evaluate_shapes(
+    model,
+    registered,
+    aligned,
+    faces,
+    *,
+    names: Sequence[str],
+    scans: Sequence | None = None,
+    landmarks: Mapping | None = None,
+    landmarks_source: str | None = None,
+    modes: int | None = None,
+    n_samples: int = 200,
+    truncate: float | None = 3.0,
+    scaling: bool = False,
+    random_state: RandomState = 0,
+    uncertain_orientation: Sequence[tuple[str, float]] = (),
+    notes: Sequence[str] = (),
+    model_dir=None,
+    progress: Callable[[int, str], Progress] | None = None,
+) -> Evaluation:
+    """Measure a model's quality from its training shapes (paper section 3.4, Figs. 6, 10-12, Tables 1-3).
+
+    Writes nothing: :func:`hortishape.report.write_evaluation` writes the
+    result, :func:`evaluate_model` does both for a built model directory.
+
+    1. compactness C(m) of the model (eq. 14), as a fraction of the total variance;
+    2. generalization G(m) by leave-one-out on the aligned shapes (eq. 15,
+       :func:`hortishape.metrics.generalization`: Procrustes and PCA of the
+       others, the left-out shape described by m modes);
+    3. specificity S(m) (eq. 16, :func:`hortishape.metrics.specificity`):
+       ``n_samples`` random shapes per m against their nearest training shape;
+    4. width, depth and height of every instance in the model's frame (Table 1);
+    5. the geometric error of every registered surface against its scan, when
+       ``scans`` are given; instances whose scan is missing are left out and
+       named in ``notes``;
+    6. landmark transfer errors (Table 3 protocol), when ``landmarks`` are given.
+
+    Parameters
+    ----------
+    model : ShapeModel
+        The fitted model.
+    registered : (N, n, 3) array_like of float
+        The registered surfaces, each in its scan's coordinates, mm.
+    aligned : (N, n, 3) array_like of float
+        The same surfaces Procrustes-aligned (what the model was fitted to).
+    faces : (m, 3) array_like of int
+        Their triangles.
+    names : sequence of str
+        The N instances (the scans' file stems).
+    scans : sequence of (path or None), optional
+        The scan of each instance, None where it is missing; without it the
+        geometric error is skipped.
+    landmarks : mapping, optional
+        Stem -> name -> [x, y, z] in scan coordinates (:func:`read_landmarks`).
+    landmarks_source : str, optional
+        Where ``landmarks`` came from, for the report.
+    modes : int, optional
+        Evaluate m = 1 .. ``modes``. Default (and largest): N - 2 (the modes of
+        a leave-one-out model of N shapes), at most the model's modes.
+    n_samples : int, default: 200
+        Random shapes per m for the specificity.
+    truncate : float or None, default: 3.0
+        Truncation of the random coefficients, standard deviations.
+    scaling : bool, default: False
+        Whether the Procrustes alignment removed size (as the build did).
+    random_state : int, Generator, SeedSequence or None, default: 0
+        For the specificity's random shapes.
+    uncertain_orientation : sequence of (str, float), optional
+        ``(name, confidence)`` of instances whose orientation the build found uncertain.
+    notes : sequence of str, optional
+        Notes from reading the inputs, kept first.
+    model_dir : path, optional
+        The model directory the shapes came from, recorded in the result.
+    progress : callable, optional
+        ``progress(total, description)`` returns a wrapper for an iterator
+        (e.g. a tqdm factory).
+
+    Returns
+    -------
+    Evaluation
+        With no ``files``.
+
+    Raises
+    ------
+    HortishapeError
+        Fewer than 4 instances, ``modes`` out of range, or shapes that do not
+        match the model.
+
+    Examples
+    --------
+    >>> import trimesh
+    >>> from hortishape.model import ShapeModel
+    >>> s = trimesh.creation.icosphere(subdivisions=2, radius=30.0)
+    >>> rng = np.random.default_rng(0)
+    >>> shapes = s.vertices * rng.uniform(0.8, 1.2, (6, 1, 3))  # spheres stretched along x, y, z
+    >>> model = ShapeModel().fit(shapes, s.faces)
+    >>> ev = evaluate_shapes(model, shapes, shapes, s.faces, names=[f"s{i}" for i in range(6)], n_samples=20)
+    >>> model.n_components_, [int(m) for m in ev.modes], ev.geometric_error is None
+    (3, [1, 2, 3], True)
+    >>> bool(ev.compactness.ratio[-1] > 0.999)   # three modes hold all the variance
+    True
+    """
+    from .procrustes import procrustes_align
+
+    start = time.perf_counter()
+    timings: dict[str, float] = {}
+    notes = list(notes)
+    names = [str(n) for n in names]
+    n_shapes = len(names)
+    if n_shapes < 4:
+        raise HortishapeError(f"{n_shapes} instances; the leave-one-out evaluation needs at least 4")
+    registered = np.asarray(registered, dtype=np.float64)
+    aligned = np.asarray(aligned, dtype=np.float64)
+    faces = np.asarray(faces)
+    expected = (n_shapes, model.n_points_, 3)
+    for what, x in (("registered", registered), ("aligned", aligned)):
+        if x.shape != expected:
+            raise HortishapeError(f"the {what} shapes have shape {x.shape}; the model and names need {expected}")
+    n_modes = _check_modes(modes, n_shapes, model.n_components_)
+
+    t0 = time.perf_counter()
+    comp = compactness(model, modes=n_modes)
+    timings["compactness"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    gen = generalization(aligned, modes=n_modes, scaling=scaling,
+                         progress=progress(n_shapes, "generalization (leave-one-out)") if progress else None)
+    timings["generalization"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    spec = specificity(model, aligned, modes=n_modes, n_samples=n_samples, truncate=truncate,
+                       random_state=random_state)
+    timings["specificity"] = time.perf_counter() - t0
+
+    # dimensions: each registered surface rigidly onto the model's mean (its frame, +z up)
+    t0 = time.perf_counter()
+    in_frame = np.stack([procrustes_align(r, model.mean_)[0] for r in registered])
+    dims = dimensions(in_frame, faces)
+    timings["dimensions"] = time.perf_counter() - t0
+
+    geo = None
+    if scans is not None:
+        t0 = time.perf_counter()
+        geo = geometric_error(registered, faces, names, list(scans),
+                              progress=progress(n_shapes, "geometric error") if progress else None)
+        if geo is not None and geo.missing:
+            notes.append(f"geometric error: {len(geo.missing)} of {n_shapes} scans left out: "
+                         + "; ".join(f"{n}: {why}" for n, why in geo.missing[:5])
+                         + ("; ..." if len(geo.missing) > 5 else ""))
+        timings["geometric_error"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    transfer = None
+    if landmarks is not None:
+        arr, lm_names = _landmark_array(landmarks, names, notes, landmarks_source or "the landmarks")
+        if arr is not None:
+            transfer = transfer_landmarks(registered, faces, arr, names=lm_names, mean=model.mean_)
+    timings["landmarks"] = time.perf_counter() - t0
+
+    uncertain = tuple((str(n), float(c)) for n, c in uncertain_orientation if str(n) in names)
+    if uncertain:
+        notes.append(f"the build found the orientation of {len(uncertain)} instance(s) uncertain (their search's "
+                     "margin over a distinct orientation was small): "
+                     + ", ".join(f"{n} ({c:.3f})" for n, c in uncertain)
+                     + "; see the pictures under 'Orientation' and check that they match the mean")
+
+    return Evaluation(
+        model_dir=None if model_dir is None else Path(model_dir), names=tuple(names), n_points=model.n_points_,
+        compactness=comp, generalization=gen, specificity=spec, dimensions=dims, geometric_error=geo,
+        landmarks=transfer, landmarks_source=landmarks_source if landmarks is not None else None,
+        notes=tuple(notes), uncertain_orientation=uncertain, seconds=time.perf_counter() - start, timings=timings,
+        settings={"n_samples": int(n_samples), "truncate": truncate, "scaling": scaling,
+                  "random_state": random_state if isinstance(random_state, (int, type(None))) else "given"},
+    )
+
+
+def _read_shapes(layout: ModelDir, names: list[str], model, scaling: bool, notes: list[str]):
+    """The registered and aligned surfaces of a model directory, checked against the model."""
+    from .io import read_mesh
+
+    registered_meshes = [read_mesh(layout.registered_mesh(n)) for n in names]
+    faces = registered_meshes[0].faces
+    for n, m in zip(names, registered_meshes):
+        if m.n_vertices != model.n_points_ or not np.array_equal(m.faces, faces):
+            raise HortishapeError(f"{layout.registered_mesh(n)}: does not correspond with the model "
+                                  f"({m.n_vertices} vertices, the model {model.n_points_})")
+    registered = np.stack([m.vertices for m in registered_meshes])
+    del registered_meshes
+    if all(layout.aligned_mesh(n).is_file() for n in names):
+        aligned = np.stack([read_mesh(layout.aligned_mesh(n)).vertices for n in names])
+    else:
+        from .procrustes import generalized_procrustes
+
+        notes.append("aligned/ is incomplete: the registered surfaces were aligned again")
+        aligned = generalized_procrustes(registered, scaling=scaling).aligned
+    if aligned.shape != registered.shape:
+        raise HortishapeError(f"{layout.aligned}: the aligned surfaces do not correspond with the model")
+    return registered, aligned, faces
+
+
+def _find_landmarks(landmarks, names: list[str], paths, scans_dir: Path | None, notes: list[str]):
+    """Landmarks given (a file, folder or mapping) or found as ``<stem>.truth.json`` beside the scans."""
+    if landmarks is not None:
+        if isinstance(landmarks, Mapping):
+            marks = {str(s): _landmark_dict(v, f"landmarks[{s!r}]") for s, v in landmarks.items()}
+            return marks, "the given mapping"
+        return read_landmarks(landmarks), str(landmarks)
+    folder = scans_dir or next((p.parent for p in paths if p is not None), None)
+    if folder is not None and any((folder / f"{n}.truth.json").is_file() for n in names):
+        marks = {n: _landmark_dict(_read_json(folder / f"{n}.truth.json"), str(folder / f"{n}.truth.json"))
+                 for n in names if (folder / f"{n}.truth.json").is_file()}
+        return marks, f"{folder}/<stem>.truth.json"
+    notes.append("no landmarks given (--landmarks) nor found beside the scans: landmark errors skipped")
+    return None, None
+
+
 def evaluate_model(
     model_dir,
     *,
@@ -438,23 +525,11 @@ def evaluate_model(
     """Measure a built model's quality and write the report (paper section 3.4, Figs. 6, 10-12, Tables 1-3).
 
     Reads ``model_dir/model.h5``, ``summary.json``, ``aligned/<stem>.ply``
-    and ``registered/<stem>.ply``, then:
-
-    1. compactness C(m) of the model (eq. 14), as a fraction of the total variance;
-    2. generalization G(m) by leave-one-out on the aligned shapes (eq. 15,
-       :func:`hortishape.metrics.generalization`: Procrustes and PCA of the
-       others, the left-out shape described by m modes);
-    3. specificity S(m) (eq. 16, :func:`hortishape.metrics.specificity`):
-       ``n_samples`` random shapes per m against their nearest training shape;
-    4. the geometric error of every registered surface against its scan (the
-       path recorded in ``summary.json``, or in ``scans``); instances whose
-       scan is missing are left out, and named in ``notes``;
-    5. landmark transfer errors (Table 3 protocol) when landmarks are given, or
-       found as ``<stem>.truth.json`` beside the scans;
-    6. width, depth and height of every instance in the model's frame (Table 1).
-
-    With ``write`` (the default) everything goes to ``model_dir/evaluation/``
-    (:func:`write_evaluation`).
+    and ``registered/<stem>.ply`` (:class:`hortishape.layout.ModelDir`),
+    finds each instance's scan (the path recorded in ``summary.json``, or in
+    ``scans``) and its landmarks, measures with :func:`evaluate_shapes` and,
+    with ``write`` (the default), writes everything to
+    ``model_dir/evaluation/`` (:func:`hortishape.report.write_evaluation`).
 
     Parameters
     ----------
@@ -498,346 +573,42 @@ def evaluate_model(
     >>> ev.generalization.mean_mm[4], ev.files["report"]            # doctest: +SKIP
     (0.25, PosixPath('model/evaluation/report.html'))
     """
-    from .io import read_mesh
     from .model import ShapeModel
-    from .procrustes import procrustes_align
 
     start = time.perf_counter()
-    timings: dict[str, float] = {}
     notes: list[str] = []
     mdir = Path(model_dir)
+    layout = ModelDir(mdir)
     summary = _read_summary(mdir)
     names = [str(n) for n in summary["instances"]]
-    n_shapes = len(names)
-    if n_shapes < 4:
-        raise HortishapeError(f"{mdir}: {n_shapes} instances; the leave-one-out evaluation needs at least 4")
-    model = ShapeModel.load(mdir / "model.h5")
+    if len(names) < 4:
+        raise HortishapeError(f"{mdir}: {len(names)} instances; the leave-one-out evaluation needs at least 4")
+    model = ShapeModel.load(layout.model)
     scaling = bool((summary.get("procrustes") or {}).get("scaling", False))
 
     t0 = time.perf_counter()
-    registered_meshes = [read_mesh(mdir / "registered" / f"{n}.ply") for n in names]
-    faces = registered_meshes[0].faces
-    for n, m in zip(names, registered_meshes):
-        if m.n_vertices != model.n_points_ or not np.array_equal(m.faces, faces):
-            raise HortishapeError(f"{mdir / 'registered' / (n + '.ply')}: does not correspond with the model "
-                                  f"({m.n_vertices} vertices, the model {model.n_points_})")
-    registered = np.stack([m.vertices for m in registered_meshes])
-    del registered_meshes
-    if all((mdir / "aligned" / f"{n}.ply").is_file() for n in names):
-        aligned = np.stack([read_mesh(mdir / "aligned" / f"{n}.ply").vertices for n in names])
-    else:
-        from .procrustes import generalized_procrustes
-
-        notes.append("aligned/ is incomplete: the registered surfaces were aligned again")
-        aligned = generalized_procrustes(registered, scaling=scaling).aligned
-    if aligned.shape != registered.shape:
-        raise HortishapeError(f"{mdir / 'aligned'}: the aligned surfaces do not correspond with the model")
-    timings["read"] = time.perf_counter() - t0
-
-    largest = min(n_shapes - 2, model.n_components_)
-    if modes is None:
-        n_modes = largest
-    else:
-        if isinstance(modes, bool) or int(modes) != modes or modes < 1:
-            raise HortishapeError(f"modes must be a positive whole number, got {modes!r}")
-        if modes > largest:
-            why = (f"a leave-one-out model of {n_shapes} instances has {n_shapes - 2} modes"
-                   if largest == n_shapes - 2 else f"the model keeps {model.n_components_} modes")
-            raise HortishapeError(f"--modes {modes} is too many: at most {largest} ({why})")
-        n_modes = int(modes)
-
-    t0 = time.perf_counter()
-    comp = compactness(model, modes=n_modes)
-    timings["compactness"] = time.perf_counter() - t0
-
-    t0 = time.perf_counter()
-    gen = generalization(aligned, modes=n_modes, scaling=scaling,
-                         progress=progress(n_shapes, "generalization (leave-one-out)") if progress else None)
-    timings["generalization"] = time.perf_counter() - t0
-
-    t0 = time.perf_counter()
-    spec = specificity(model, aligned, modes=n_modes, n_samples=n_samples, truncate=truncate,
-                       random_state=random_state)
-    timings["specificity"] = time.perf_counter() - t0
-
-    # dimensions: each registered surface rigidly onto the model's mean (its frame, +z up)
-    t0 = time.perf_counter()
-    in_frame = np.stack([procrustes_align(r, model.mean_)[0] for r in registered])
-    dims = dimensions(in_frame, faces)
-    timings["dimensions"] = time.perf_counter() - t0
-
-    t0 = time.perf_counter()
+    registered, aligned, faces = _read_shapes(layout, names, model, scaling, notes)
     sources = _sources(summary)
     scans_dir = None if scans is None else Path(scans)
     if scans_dir is not None and not scans_dir.is_dir():
         raise HortishapeError(f"{scans_dir}: not a folder")
     paths = [_find_scan(n, sources.get(n), mdir, scans_dir) for n in names]
-    geo = geometric_error(registered, faces, names, paths,
-                          progress=progress(n_shapes, "geometric error") if progress else None)
-    if geo is None:
-        where = scans_dir or summary.get("input_dir", "?")
-        notes.append(f"geometric error map skipped: none of the {n_shapes} scans was found (looked in {where}; "
-                     "give the folder with --scans)")
-    elif geo.missing:
-        notes.append(f"geometric error: {len(geo.missing)} of {n_shapes} scans left out: "
-                     + "; ".join(f"{n}: {why}" for n, why in geo.missing[:5])
-                     + ("; ..." if len(geo.missing) > 5 else ""))
-    timings["geometric_error"] = time.perf_counter() - t0
+    marks, lm_source = _find_landmarks(landmarks, names, paths, scans_dir, notes)
+    read_seconds = time.perf_counter() - t0
 
-    t0 = time.perf_counter()
-    marks, lm_source = None, None
-    if landmarks is not None:
-        if isinstance(landmarks, Mapping):
-            marks = {str(s): _landmark_dict(v, f"landmarks[{s!r}]") for s, v in landmarks.items()}
-            lm_source = "the given mapping"
-        else:
-            marks = read_landmarks(landmarks)
-            lm_source = str(landmarks)
-    else:
-        folder = scans_dir or next((p.parent for p in paths if p is not None), None)
-        if folder is not None and any((folder / f"{n}.truth.json").is_file() for n in names):
-            marks = {n: _landmark_dict(_read_json(folder / f"{n}.truth.json"), str(folder / f"{n}.truth.json"))
-                     for n in names if (folder / f"{n}.truth.json").is_file()}
-            lm_source = f"{folder}/<stem>.truth.json"
-        else:
-            notes.append("no landmarks given (--landmarks) nor found beside the scans: landmark errors skipped")
-    transfer = None
-    if marks is not None:
-        arr, lm_names = _landmark_array(marks, names, notes, lm_source)
-        if arr is not None:
-            transfer = transfer_landmarks(registered, faces, arr, names=lm_names, mean=model.mean_)
-    timings["landmarks"] = time.perf_counter() - t0
-
-    uncertain = tuple((str(u["name"]), float(u["confidence"])) for u in summary.get("uncertain_orientation") or []
-                      if str(u.get("name")) in names)
-    if uncertain:
-        notes.append(f"the build found the orientation of {len(uncertain)} instance(s) uncertain (their search's "
-                     "margin over a distinct orientation was small): "
-                     + ", ".join(f"{n} ({c:.3f})" for n, c in uncertain)
-                     + "; see the pictures under 'Orientation' and check that they match the mean")
-
-    ev = Evaluation(
-        model_dir=mdir, names=tuple(names), n_points=model.n_points_, compactness=comp, generalization=gen,
-        specificity=spec, dimensions=dims, geometric_error=geo, landmarks=transfer, landmarks_source=lm_source,
-        notes=tuple(notes), uncertain_orientation=uncertain, seconds=time.perf_counter() - start, timings=timings,
-        settings={"n_samples": int(n_samples), "truncate": truncate, "scaling": scaling,
-                  "random_state": random_state if isinstance(random_state, (int, type(None))) else "given"},
+    uncertain = [(str(u["name"]), float(u["confidence"])) for u in summary.get("uncertain_orientation") or []]
+    ev = evaluate_shapes(
+        model, registered, aligned, faces, names=names, scans=paths, landmarks=marks, landmarks_source=lm_source,
+        modes=modes, n_samples=n_samples, truncate=truncate, scaling=scaling, random_state=random_state,
+        uncertain_orientation=uncertain, notes=notes, model_dir=mdir, progress=progress,
     )
+    if ev.geometric_error is None:
+        where = scans_dir or summary.get("input_dir", "?")
+        ev = replace(ev, notes=(*ev.notes, f"geometric error map skipped: none of the {len(names)} scans was found "
+                                           f"(looked in {where}; give the folder with --scans)"))
+    ev = replace(ev, timings={"read": read_seconds, **ev.timings}, seconds=time.perf_counter() - start)
     if not write:
         return ev
-    return write_evaluation(ev, model, faces, mdir / "evaluation", random_state=random_state, start=start)
-
-
-# --------------------------------------------------------------------------
-# writing
-# --------------------------------------------------------------------------
-
-
-def _atomic_text(path: Path, text: str) -> Path:
-    from .io import atomic_path
-
-    with atomic_path(path, HortishapeError) as tmp:
-        tmp.write_text(text)
-    return path
-
-
-def _finite(values) -> list:
-    """A list with NaN and infinity as None (strict JSON)."""
-    return [None if not math.isfinite(v) else float(v) for v in np.asarray(values, dtype=float).reshape(-1)]
-
-
-def metrics_dict(ev: Evaluation) -> dict:
-    """The JSON-able content of ``metrics.json``.
-
-    Top-level lists aligned with ``modes``: ``compactness`` (cumulative
-    fraction of the variance, 0..1), ``generalization_mm`` /
-    ``generalization_se_mm`` and ``specificity_mm`` / ``specificity_se_mm``
-    (mean Euclidean distance per vertex and its standard error, mm),
-    ``generalization_sq`` / ``generalization_se_sq`` and ``specificity_sq`` /
-    ``specificity_se_sq`` (the paper's eqs. 15-16, squared norms, mm^2) and
-    ``variance_mm2`` (each mode's variance). Then the geometric error,
-    landmarks, dimensions and settings.
-    """
-    c, g, s, d = ev.compactness, ev.generalization, ev.specificity, ev.dimensions
-    out: dict = {
-        "units": "mm",
-        "model_dir": str(ev.model_dir),
-        "n_instances": len(ev.names),
-        "n_points": ev.n_points,
-        "modes": [int(m) for m in c.modes],
-        "compactness": _finite(c.ratio),
-        "variance_mm2": _finite(c.variance_mm2),
-        "generalization_mm": _finite(g.mean_mm),
-        "generalization_se_mm": _finite(g.se_mm),
-        "generalization_sq": _finite(g.mean_sq),
-        "generalization_se_sq": _finite(g.se_sq),
-        "specificity_mm": _finite(s.mean_mm),
-        "specificity_se_mm": _finite(s.se_mm),
-        "specificity_sq": _finite(s.mean_sq),
-        "specificity_se_sq": _finite(s.se_sq),
-        "definitions": {
-            "compactness": "C(m) / total variance: sum of the first m mode variances (eq. 14) over the total",
-            "generalization_mm": "leave-one-out: mean Euclidean distance per vertex between each left-out "
-                                 "shape and its description by m modes, averaged over the shapes (mm)",
-            "generalization_sq": "eq. 15: squared norm |x_i - x'_i(m)|^2 over all 3n coordinates, "
-                                 "averaged over the shapes (mm^2)",
-            "specificity_mm": "mean Euclidean distance per vertex between a random shape of the model with "
-                              "m modes and its nearest training shape, averaged over the random shapes (mm)",
-            "specificity_sq": "eq. 16: squared norm |y_i - y'_i(m)|^2, averaged over the random shapes (mm^2)",
-            "se": "standard error of the mean (standard deviation / sqrt(count))",
-        },
-        "dimensions_mm": {
-            "mean": dict(zip(("width", "depth", "height"), _finite(d.mean))),
-            "sd": dict(zip(("width", "depth", "height"), _finite(d.sd))),
-            "per_instance": {n: dict(zip(("width", "depth", "height"), _finite(row)))
-                             for n, row in zip(ev.names, d.per_shape)},
-            "overall_height": {"mean": float(d.overall_height.mean()),
-                               "sd": _finite([d.overall_height.std(ddof=1)])[0]},
-            "definition": "extents in the model's frame: height along z without thin ends (a stalk), width "
-                          "and depth along the major and minor horizontal axes of the mean; overall_height "
-                          "includes the stalk",
-        },
-        "instances": list(ev.names),
-        "settings": dict(ev.settings),
-        "notes": list(ev.notes),
-        "seconds": ev.seconds,
-        "timings_s": dict(ev.timings),
-    }
-    geo = ev.geometric_error
-    if geo is not None:
-        out["geometric_error_mm"] = {
-            "mean": geo.mean_mm, "sd": _finite([geo.sd_mm])[0],
-            "per_instance": dict(zip(geo.names, _finite(geo.per_instance_mm))),
-            "max_per_instance": dict(zip(geo.names, _finite(geo.max_mm))),
-            "map_max": float(geo.per_vertex_mm.max()),
-            "missing": [{"instance": n, "reason": r} for n, r in geo.missing],
-        }
-    else:
-        out["geometric_error_mm"] = None
-    t = ev.landmarks
-    if t is not None:
-        errs = t.errors_mm
-        stats = {k: dict(zip(("mean", "sd", "max"), _finite(v[:3])), n=v[3]) for k, v in t.summary().items()}
-        out["landmarks"] = {
-            "source": ev.landmarks_source,
-            "names": list(t.names),
-            "protocol": "each given landmark -> closest point of its corresponded surface (face, barycentric) "
-                        "-> evaluated on the mean and averaged over the instances -> put on the mean's surface "
-                        "-> carried to every instance through the correspondence; error = distance to the given "
-                        "position",
-            "on_mean_mm": {k: _finite(p) for k, p in zip(t.names, t.on_mean)},
-            "error_mm": {k: stats[k] for k in t.names},
-            "average_mm": stats.get("average", stats[t.names[0]]),
-            "per_instance_mm": {n: dict(zip(t.names, _finite(row))) for n, row in zip(ev.names, errs)},
-            "surface_distance_mm": {n: dict(zip(t.names, _finite(row))) for n, row in zip(ev.names, t.surface_mm)},
-        }
-    else:
-        out["landmarks"] = None
-    return out
-
-
-def metrics_csv(ev: Evaluation) -> str:
-    """The content of ``metrics.csv``: one row per m, the measures as columns."""
-    c, g, s = ev.compactness, ev.generalization, ev.specificity
-    cols = {
-        "modes": c.modes, "compactness": c.ratio, "variance_mm2": c.variance_mm2,
-        "generalization_mm": g.mean_mm, "generalization_se_mm": g.se_mm,
-        "generalization_sq": g.mean_sq, "generalization_se_sq": g.se_sq,
-        "specificity_mm": s.mean_mm, "specificity_se_mm": s.se_mm,
-        "specificity_sq": s.mean_sq, "specificity_se_sq": s.se_sq,
-    }
-    lines = [",".join(cols)]
-    for j in range(len(c.modes)):
-        lines.append(",".join(str(int(v[j])) if k == "modes" else f"{float(v[j]):.9g}" for k, v in cols.items()))
-    return "\n".join(lines) + "\n"
-
-
-def write_evaluation(
-    ev: Evaluation,
-    model,
-    faces,
-    folder,
-    *,
-    random_state: RandomState = 0,
-    start: float | None = None,
-) -> Evaluation:
-    """Write an evaluation: metrics, error map, plots, pictures and the HTML report.
-
-    Files in ``folder`` (created if needed), all written atomically:
-
-    - ``metrics.json``, ``metrics.csv`` (see :func:`metrics_dict`, :func:`metrics_csv`);
-    - ``error_map.ply`` (the mean shape with a colour per vertex and the
-      distance as the vertex property ``error_mm``), ``error_map.vtk`` (the
-      distance as point data ``error_mm``) and ``error_map.png`` (four views
-      with a colour bar), when there is a geometric error;
-    - ``compactness.png``, ``generalization.png``, ``specificity.png``,
-      ``landmarks.png`` (with landmarks), ``modes.png``, ``samples.png``;
-    - ``report.html``: all of it on one page, pictures embedded.
-
-    Parameters
-    ----------
-    ev : Evaluation
-        From ``evaluate_model(..., write=False)``.
-    model : ShapeModel
-        The evaluated model (for the mean, the mode and sample pictures).
-    faces : (m, 3) array_like of int
-        Its triangles.
-    folder : path
-    random_state : int, Generator, SeedSequence or None, default: 0
-        For the random samples pictured.
-    start : float, optional
-        ``time.perf_counter()`` when the evaluation began (for ``seconds``).
-
-    Returns
-    -------
-    Evaluation
-        ``ev`` with ``files``, ``seconds`` and ``timings`` filled in.
-    """
-    from dataclasses import replace
-
-    from . import report
-    from .io import read_mesh, write_mesh
-
-    t0 = time.perf_counter()
-    out = Path(folder)
-    out.mkdir(parents=True, exist_ok=True)
-    files: dict[str, Path] = {}
-    mean_mesh = model.to_mesh(model.mean_) if model.faces_ is not None else None
-    if mean_mesh is None:
-        from .mesh import Mesh
-
-        mean_mesh = Mesh(model.mean_, faces)
-
-    files["compactness_png"] = report.plot_compactness(ev.compactness, out / "compactness.png")
-    files["generalization_png"] = report.plot_generalization(ev.generalization, out / "generalization.png")
-    files["specificity_png"] = report.plot_specificity(ev.specificity, out / "specificity.png")
-    geo = ev.geometric_error
-    if geo is not None:
-        values = geo.per_vertex_mm
-        files["error_map_ply"] = write_mesh(out / "error_map.ply", mean_mesh,
-                                            vertex_colors=report.error_colours(values),
-                                            vertex_scalars={"error_mm": values})
-        files["error_map_vtk"] = write_mesh(out / "error_map.vtk", mean_mesh, vertex_scalars={"error_mm": values})
-        files["error_map_png"] = report.render_error_map(mean_mesh, values, out / "error_map.png",
-                                                         n_instances=len(geo.names))
-    if ev.landmarks is not None:
-        files["landmarks_png"] = report.plot_landmark_errors(ev.landmarks, ev.names, out / "landmarks.png")
-    n_modes = min(3, model.n_components_)
-    files["modes_png"] = report.render_modes(model, out / "modes.png", n_modes=n_modes)
-    files["samples_png"] = report.render_samples(model, out / "samples.png", random_state=random_state)
-    if ev.uncertain_orientation:
-        files["uncertain_png"] = report.render_uncertain(
-            mean_mesh, [read_mesh(ev.model_dir / "aligned" / f"{n}.ply").vertices for n, _ in ev.uncertain_orientation],
-            [f"{n} ({c:.3f})" for n, c in ev.uncertain_orientation], out / "uncertain_orientation.png")
-    timings = dict(ev.timings)
-    timings["pictures"] = time.perf_counter() - t0
-    seconds = time.perf_counter() - start if start is not None else ev.seconds + timings["pictures"]
-    ev = replace(ev, files=files, timings=timings, seconds=seconds)
-    files["metrics_json"] = _atomic_text(out / "metrics.json", json.dumps(metrics_dict(ev), indent=1))
-    files["metrics_csv"] = _atomic_text(out / "metrics.csv", metrics_csv(ev))
-    files["report"] = report.write_report(ev, out / "report.html")
-    # files an earlier evaluation wrote that this one did not (no scans, no landmarks now)
-    for stale in ("error_map.ply", "error_map.vtk", "error_map.png", "landmarks.png", "uncertain_orientation.png"):
-        if (out / stale) not in files.values():
-            (out / stale).unlink(missing_ok=True)
-    return replace(ev, files=dict(files))
+    by_name = dict(zip(names, aligned))
+    return write_evaluation(ev, model, faces, layout.evaluation, random_state=random_state, start=start,
+                            aligned={n: by_name[n] for n, _ in ev.uncertain_orientation})

@@ -6,6 +6,11 @@
 - :func:`transfer_landmarks`: landmarks marked on the mean and carried to every
   instance through the correspondence (the protocol of Table 3).
 - :func:`dimensions`: width, depth and height of every shape (Table 1).
+- :func:`geometric_error`: distance of the registered surfaces to their scans
+  (section 3.1, Fig. 6, Table 2).
+- :class:`Evaluation`: all of them for one model, as
+  :func:`hortishape.evaluate.evaluate_shapes` measures them and
+  :func:`hortishape.report.write_evaluation` writes them.
 
 Generalization and specificity are reported two ways: as the paper defines
 them (a mean squared norm ``|x - x'|^2`` summed over all 3n coordinates,
@@ -19,6 +24,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import field
+from pathlib import Path
 from typing import TYPE_CHECKING, Callable, Iterable, Sequence
 
 import numpy as np
@@ -32,12 +40,15 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = [
     "Compactness",
     "Dimensions",
+    "Evaluation",
     "Generalization",
+    "GeometricError",
     "LandmarkTransfer",
     "Specificity",
     "compactness",
     "dimensions",
     "generalization",
+    "geometric_error",
     "specificity",
     "transfer_landmarks",
 ]
@@ -730,3 +741,150 @@ def dimensions(shapes, faces=None, *, up=(0.0, 0.0, 1.0), min_width_fraction: fl
                 per[i, 2] = top - bottom
     sd = per.std(axis=0, ddof=1) if len(per) > 1 else np.full(3, np.nan)
     return Dimensions(per, overall, per.mean(axis=0), sd, axes)
+
+
+@dataclass(frozen=True)
+class GeometricError:
+    """Distance of the registered surfaces to their scans (paper Fig. 6, Table 2).
+
+    Attributes
+    ----------
+    names : tuple of str
+        The instances measured (those whose scan was found).
+    per_instance_mm : (N,) float64 ndarray
+        Mean distance of each registered surface's vertices to its scan, mm.
+    max_mm : (N,) float64 ndarray
+        The largest of those distances per instance, mm.
+    per_vertex_mm : (n,) float64 ndarray
+        For every reference vertex, its distance to the scan averaged over the
+        instances: the error map, mm.
+    missing : tuple of (str, str)
+        ``(instance, reason)`` for every instance left out.
+    """
+
+    names: tuple
+    per_instance_mm: np.ndarray
+    max_mm: np.ndarray
+    per_vertex_mm: np.ndarray
+    missing: tuple = ()
+
+    @property
+    def mean_mm(self) -> float:
+        """Mean over the instances of their mean distance (Table 2), mm."""
+        return float(self.per_instance_mm.mean())
+
+    @property
+    def sd_mm(self) -> float:
+        """Standard deviation over the instances of their mean distance (Table 2), mm."""
+        return float(self.per_instance_mm.std(ddof=1)) if len(self.per_instance_mm) > 1 else math.nan
+
+
+def geometric_error(
+    registered: np.ndarray,
+    faces: np.ndarray,
+    names,
+    scan_paths,
+    *,
+    progress: Callable[[Iterable], Iterable] | None = None,
+) -> GeometricError | None:
+    """Distance of each registered surface's vertices to its scan, and their average per vertex.
+
+    Parameters
+    ----------
+    registered : (N, n, 3) float64 ndarray
+        Registered surfaces, each in its scan's coordinates, mm.
+    faces : (m, 3) int64 ndarray
+    names : sequence of str
+        The N instances.
+    scan_paths : sequence of (path or None)
+        The scan of each instance; None where it was not found.
+    progress : callable, optional
+        Wraps the iterator over the instances.
+
+    Returns
+    -------
+    GeometricError or None
+        None when no scan could be read.
+    """
+    from .io import read_mesh
+    from .surface import closest_points
+
+    kept, dists, missing = [], [], []
+    items = list(zip(names, registered, scan_paths))
+    for name, vertices, path in (progress(items) if progress else items):
+        if path is None:
+            missing.append((name, "scan not found"))
+            continue
+        try:
+            scan = read_mesh(path)
+        except HortishapeError as exc:
+            missing.append((name, str(exc)))
+            continue
+        kept.append(name)
+        dists.append(closest_points(scan, vertices).distances)
+    if not kept:
+        return None
+    d = np.stack(dists)
+    return GeometricError(tuple(kept), d.mean(axis=1), d.max(axis=1), d.mean(axis=0), tuple(missing))
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """Everything :func:`hortishape.evaluate.evaluate_shapes` measured, and where it was written.
+
+    Attributes
+    ----------
+    model_dir : Path or None
+        The built model directory (None for shapes evaluated in memory).
+    names : tuple of str
+        The model's instances, in order.
+    n_points : int
+        Vertices of the model's shapes.
+    compactness : Compactness
+    generalization : Generalization
+    specificity : Specificity
+    dimensions : Dimensions
+        Width, depth and height of every instance, in the model's frame.
+    geometric_error : GeometricError or None
+        None when no scan was found (see ``notes``).
+    landmarks : LandmarkTransfer or None
+        Rows in the order of ``names``; None without landmarks.
+    landmarks_source : str or None
+        Where the landmarks came from.
+    notes : tuple of str
+        What was skipped and why, in plain words.
+    uncertain_orientation : tuple of (str, float)
+        ``(name, confidence)`` of the instances the build named as of
+        uncertain orientation (``summary.json``), pictured in the report.
+    files : Mapping of str to Path
+        What was written: ``"report"``, ``"metrics_json"``, ``"metrics_csv"``,
+        ``"error_map_ply"``, ... (empty when nothing was written).
+    seconds : float
+        Wall time of the measures (and of the writing, when written).
+    timings : Mapping of str to float
+        Seconds per stage.
+    settings : Mapping of str to object
+        The options used (``n_samples``, ``truncate``, ``random_state``, ``scaling``).
+    """
+
+    model_dir: Path | None
+    names: tuple
+    n_points: int
+    compactness: Compactness
+    generalization: Generalization
+    specificity: Specificity
+    dimensions: Dimensions
+    geometric_error: GeometricError | None
+    landmarks: LandmarkTransfer | None
+    landmarks_source: str | None
+    notes: tuple
+    uncertain_orientation: tuple = ()
+    files: Mapping = field(default_factory=dict)
+    seconds: float = 0.0
+    timings: Mapping = field(default_factory=dict)
+    settings: Mapping = field(default_factory=dict)
+
+    @property
+    def modes(self) -> np.ndarray:
+        """The numbers of modes m every measure was evaluated at."""
+        return self.compactness.modes

@@ -26,15 +26,30 @@ from typing import Callable, Mapping, Sequence
 import numpy as np
 
 from ._batch import raise_failed, run_jobs
+from ._files import Progress, atomic_text
 from .align import rigid_transform, rotation_about
 from .errors import ConvergenceWarning, HortishapeError
-from ._files import Progress, atomic_text
 from .io import is_mesh_file, mesh_formats, read_mesh, write_mesh
+from .layout import ModelDir
 from .mesh import Mesh
 from .registration import Registration, RegistrationConfig, Template, heuristics, prepare_reference, register
 from .units import PLAUSIBLE_EXTENT_MM, SizeCheck, read_scan
 
-__all__ = ["InstanceResult", "find_meshes", "find_scans", "register_files", "template_fingerprint"]
+__all__ = [
+    "BuildResult",
+    "InstanceResult",
+    "ScanCheck",
+    "ScanFit",
+    "build_model",
+    "check_scans",
+    "choose_reference",
+    "find_meshes",
+    "find_scans",
+    "fit_scan",
+    "read_reference_landmarks",
+    "register_files",
+    "template_fingerprint",
+]
 
 
 
@@ -142,7 +157,7 @@ def find_scans(folder, out_dir, *, n_jobs: int | None = None, strict: bool = Fal
                               f"{', '.join(mesh_formats() + volume_formats())})")
     failed = []
     if volumes:
-        results = extract_files(volumes, Path(out_dir) / "surfaces", n_jobs=n_jobs, strict=strict,
+        results = extract_files(volumes, ModelDir(out_dir).surfaces, n_jobs=n_jobs, strict=strict,
                                 progress=_stage(progress, len(volumes), "extract"), spacing=spacing)
         files += [Path(r.mesh) for r in results if r.ok]
         failed = [(r.source, r.error) for r in results if not r.ok]
@@ -433,6 +448,17 @@ def check_scans(paths: Sequence, *, max_size_ratio: float = 5.0, scale: float = 
     -------
     list of ScanCheck
         In the order of ``paths``.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib, trimesh
+    >>> folder = pathlib.Path(tempfile.mkdtemp())
+    >>> for name, r in [("a", 40.0), ("b", 42.0), ("c", 0.04)]:   # c is in metres
+    ...     s = trimesh.creation.icosphere(subdivisions=3, radius=r)
+    ...     _ = write_mesh(folder / f"{name}.ply", s.vertices, s.faces)
+    >>> checks = check_scans(find_meshes(folder))
+    >>> [c.ok for c in checks], pathlib.Path(choose_reference(checks)).name
+    ([True, True, False], 'a.ply')
     """
     from .surface import check_closed_surface, signed_volume
 
@@ -612,6 +638,7 @@ def build_model(
 
     start = time.perf_counter()
     out = Path(out_dir)
+    layout = ModelDir(out)
     files, failed = find_scans(input_dir, out, n_jobs=n_jobs, strict=strict, progress=progress, spacing=spacing)
     checks = check_scans(files, scale=scale)
     skipped = failed + [(c.path, c.error) for c in checks if not c.ok]
@@ -643,12 +670,12 @@ def build_model(
         return results
 
     template = prepare_reference(ref_scan.mesh, n_points)
-    first = run_pass(template, out / "work" / "first-pass", "registration 1/2", usable, reference_landmarks=ref_marks)
+    first = run_pass(template, layout.first_pass, "registration 1/2", usable, reference_landmarks=ref_marks)
     good = [Path(r.source) for r in first if r.ok]
     _need_three(good, input_dir)
-    first_files = {p: out / "work" / "first-pass" / f"{p.stem}.ply" for p in good}
+    first_files = {p: layout.first_pass / f"{p.stem}.ply" for p in good}
     rechecked = _orientation_consensus(
-        first_files, out / "work", lambda paths, folder, c, starts=None: register_files(
+        first_files, layout, lambda paths, folder, c, starts=None: register_files(
             template, paths, folder, config=c, n_jobs=n_jobs, initial_transforms=starts,
             progress=_stage(progress, len(paths), "orientation check"), scale=scale,
             landmarks=marks, reference_landmarks=ref_marks),
@@ -671,7 +698,7 @@ def build_model(
 
         nearest = cKDTree(template.mesh.vertices).query(np.array(list(ref_marks.values())))[1]
         mean_marks = {n: template2.mesh.vertices[i] for n, i in zip(ref_marks, nearest)}
-    second = run_pass(template2, out / "registered", "registration 2/2", good, starts,
+    second = run_pass(template2, layout.registered, "registration 2/2", good, starts,
                       reference_landmarks=mean_marks)
     good = [Path(r.source) for r in second if r.ok]
     _need_three(good, input_dir)
@@ -679,13 +706,13 @@ def build_model(
     names = [p.stem for p in good]
     uncertain = tuple((Path(r.source).stem, r.orientation_confidence) for r in first
                       if r.ok and Path(r.source).stem in names and r.orientation_confidence < UNCERTAIN_CONFIDENCE)
-    shapes = np.stack([read_mesh(out / "registered" / f"{n}.ply").vertices for n in names])
+    shapes = np.stack([read_mesh(layout.registered_mesh(n)).vertices for n in names])
     gpa = generalized_procrustes(shapes, scaling=scaling)
-    (out / "aligned").mkdir(parents=True, exist_ok=True)
+    layout.aligned.mkdir(parents=True, exist_ok=True)
     for name, aligned in zip(names, gpa.aligned):
-        write_mesh(out / "aligned" / f"{name}.ply", aligned, template2.mesh.faces)
+        write_mesh(layout.aligned_mesh(name), aligned, template2.mesh.faces)
     model = ShapeModel(n_components=n_modes).fit(gpa.aligned, template2.mesh.faces, names=names)
-    model_path = out / "model.h5"
+    model_path = layout.model
     model.save(model_path)
 
     seconds = time.perf_counter() - start
@@ -709,7 +736,7 @@ def build_model(
         },
         "seconds": seconds,
     }
-    atomic_text(out / "summary.json", json.dumps(_jsonable(summary), indent=1), HortishapeError)
+    atomic_text(layout.summary, json.dumps(_jsonable(summary), indent=1), HortishapeError)
     return BuildResult(out, model_path, str(ref_path), tuple(names), tuple(skipped), tuple(first),
                        tuple(second), model.explained_variance_, model.n_points_, seconds, uncertain)
 
@@ -738,7 +765,7 @@ def _end_over_end(template: Template) -> np.ndarray:
     return rigid_transform(r, ax.centre - r @ ax.centre)
 
 
-def _orientation_consensus(files: dict, work: Path, register_paths, cfg: RegistrationConfig, *,
+def _orientation_consensus(files: dict, layout: ModelDir, register_paths, cfg: RegistrationConfig, *,
                            scaling: bool = False, flip: np.ndarray | None = None) -> list[dict]:
     """Let the population overrule a close or outlying orientation choice (in place on ``files``).
 
@@ -750,9 +777,9 @@ def _orientation_consensus(files: dict, work: Path, register_paths, cfg: Registr
     stands out from the others once all are Procrustes-aligned. Suspects (a
     close call in the search, or an outlier) are registered again from two
     other orientations: the search's runner-up (``orientation_rank=1``, into
-    ``work/first-pass-rank1``) and, given ``flip`` (a reference -> reference
+    :attr:`ModelDir.first_pass_runner_up`) and, given ``flip`` (a reference -> reference
     transform turning it end over end), the first pass's placement turned
-    end over end (into ``work/first-pass-flipped``; the runner-up is often
+    end over end (into :attr:`ModelDir.first_pass_flipped`; the runner-up is often
     a neighbouring turn of the same end), unless the scan's log says its
     ends were matched by their cavities. Whichever lies closest to the mean
     of the other surfaces is kept.
@@ -791,8 +818,8 @@ def _orientation_consensus(files: dict, work: Path, register_paths, cfg: Registr
     if not suspects:
         return []
     idx = sorted(suspects)
-    tries = {"runner-up": (work / "first-pass-rank1",
-                           register_paths([paths[i] for i in idx], work / "first-pass-rank1",
+    tries = {"runner-up": (layout.first_pass_runner_up,
+                           register_paths([paths[i] for i in idx], layout.first_pass_runner_up,
                                           replace(cfg, orientation_rank=1)))}
     # A scan whose ends the cavities told apart keeps them: the surfaces'
     # distances do not (measured on 12 synthetic peppers: two scans whose
@@ -802,9 +829,9 @@ def _orientation_consensus(files: dict, work: Path, register_paths, cfg: Registr
                  and logs[i].get("summary", {}).get("orientation_ends") != "cavity"]
     if flippable:
         starts = [np.asarray(logs[i]["transform"], dtype=np.float64) @ flip for i in flippable]
-        flipped = register_paths([paths[i] for i in flippable], work / "first-pass-flipped", cfg, starts)
+        flipped = register_paths([paths[i] for i in flippable], layout.first_pass_flipped, cfg, starts)
         by_index = dict(zip(flippable, flipped))
-        tries["flipped"] = (work / "first-pass-flipped", [by_index.get(i) for i in idx])
+        tries["flipped"] = (layout.first_pass_flipped, [by_index.get(i) for i in idx])
     records = []
     for k, i in enumerate(idx):
         rec = {"name": paths[i].stem, "why": suspects[i], "distance_mm": dist[i], "kept": "first"}

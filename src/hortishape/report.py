@@ -11,6 +11,9 @@ The quality measures of :mod:`hortishape.evaluate` are drawn by
 :func:`plot_specificity` (Fig. 12), :func:`plot_landmark_errors` (Table 3)
 and :func:`render_error_map` (Fig. 6); :func:`write_report` puts them all on
 one self-contained HTML page (pictures embedded as data URIs, no network).
+:func:`write_evaluation` writes everything of an evaluation: those pictures,
+the error map as meshes, ``metrics.json`` and ``metrics.csv``
+(:func:`metrics_dict`, :func:`metrics_csv`) and the page.
 Plots are drawn with matplotlib's Agg canvas (no display, no pyplot state).
 
 Mode numbers in pictures and file names count from 1, as in the paper
@@ -19,20 +22,30 @@ Mode numbers in pictures and file names count from 1, as in the paper
 
 from __future__ import annotations
 
+import json
+import math
 import os
+import time
+from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
+from ._files import atomic_text
+from ._rng import RandomState
+from .errors import HortishapeError
+from .layout import ModelDir
+from .metrics import Compactness, Evaluation, Generalization, LandmarkTransfer, Specificity
+
 if TYPE_CHECKING:  # pragma: no cover
-    from .evaluate import Evaluation
     from .mesh import Mesh
-    from .metrics import Compactness, Generalization, LandmarkTransfer, Specificity
     from .model import ShapeModel
 
 __all__ = [
     "error_colours",
+    "metrics_csv",
+    "metrics_dict",
     "plot_compactness",
     "plot_generalization",
     "plot_landmark_errors",
@@ -41,6 +54,7 @@ __all__ = [
     "render_modes",
     "render_uncertain",
     "render_samples",
+    "write_evaluation",
     "write_mode_meshes",
     "write_report",
 ]
@@ -325,7 +339,6 @@ def _figure(width_in: float, height_in: float):
 
 
 def _save(fig, path) -> Path:
-    from .errors import HortishapeError
     from ._files import atomic_path
 
     target = Path(path)
@@ -667,7 +680,7 @@ def write_report(ev: "Evaluation", path: str | os.PathLike) -> Path:
     Parameters
     ----------
     ev : Evaluation
-        With ``files`` naming the pictures (as :func:`hortishape.evaluate.write_evaluation` fills it).
+        With ``files`` naming the pictures (as :func:`write_evaluation` fills it).
     path : str or os.PathLike
         Output ``.html``, written atomically.
 
@@ -679,7 +692,6 @@ def write_report(ev: "Evaluation", path: str | os.PathLike) -> Path:
     import html
 
     from . import __version__
-    from .errors import HortishapeError
     from ._files import atomic_path
 
     target = Path(path)
@@ -691,9 +703,10 @@ def write_report(ev: "Evaluation", path: str | os.PathLike) -> Path:
     add = parts.append
     now = datetime.datetime.now().strftime("%Y-%m-%d %H:%M")
     add(f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">'
-        f"<title>Shape model evaluation: {esc(str(ev.model_dir))}</title><style>{_CSS}</style></head><body>")
+        f"<title>Shape model evaluation: {esc(str(ev.model_dir or 'shapes'))}</title><style>{_CSS}</style></head><body>")
     add("<h1>Shape model evaluation</h1>")
-    add(f'<p class="meta">Model <code>{esc(str(ev.model_dir / "model.h5"))}</code>: {n} instances, '
+    model_file = ModelDir(ev.model_dir).model if ev.model_dir is not None else "(in memory)"
+    add(f'<p class="meta">Model <code>{esc(str(model_file))}</code>: {n} instances, '
         f"{ev.n_points:,} vertices; measures for m = 1 .. {int(c.modes[-1])} modes. "
         f"hortishape {esc(__version__)}, {now}, evaluated in {ev.seconds:.0f} s. All lengths in mm. "
         "Method and figure numbers: Danckaers et al. (2017), Food Bioprocess Technol 10:2100-2112.</p>")
@@ -849,3 +862,216 @@ def write_report(ev: "Evaluation", path: str | os.PathLike) -> Path:
     with atomic_path(target, HortishapeError) as tmp:
         tmp.write_text("\n".join(parts), encoding="utf-8")
     return target
+
+
+# --------------------------------------------------------------------------
+# an evaluation's files
+# --------------------------------------------------------------------------
+
+
+def _finite(values) -> list:
+    """A list with NaN and infinity as None (strict JSON)."""
+    return [None if not math.isfinite(v) else float(v) for v in np.asarray(values, dtype=float).reshape(-1)]
+
+
+def metrics_dict(ev: Evaluation) -> dict:
+    """The JSON-able content of ``metrics.json``.
+
+    Top-level lists aligned with ``modes``: ``compactness`` (cumulative
+    fraction of the variance, 0..1), ``generalization_mm`` /
+    ``generalization_se_mm`` and ``specificity_mm`` / ``specificity_se_mm``
+    (mean Euclidean distance per vertex and its standard error, mm),
+    ``generalization_sq`` / ``generalization_se_sq`` and ``specificity_sq`` /
+    ``specificity_se_sq`` (the paper's eqs. 15-16, squared norms, mm^2) and
+    ``variance_mm2`` (each mode's variance). Then the geometric error,
+    landmarks, dimensions and settings.
+    """
+    c, g, s, d = ev.compactness, ev.generalization, ev.specificity, ev.dimensions
+    out: dict = {
+        "units": "mm",
+        "model_dir": None if ev.model_dir is None else str(ev.model_dir),
+        "n_instances": len(ev.names),
+        "n_points": ev.n_points,
+        "modes": [int(m) for m in c.modes],
+        "compactness": _finite(c.ratio),
+        "variance_mm2": _finite(c.variance_mm2),
+        "generalization_mm": _finite(g.mean_mm),
+        "generalization_se_mm": _finite(g.se_mm),
+        "generalization_sq": _finite(g.mean_sq),
+        "generalization_se_sq": _finite(g.se_sq),
+        "specificity_mm": _finite(s.mean_mm),
+        "specificity_se_mm": _finite(s.se_mm),
+        "specificity_sq": _finite(s.mean_sq),
+        "specificity_se_sq": _finite(s.se_sq),
+        "definitions": {
+            "compactness": "C(m) / total variance: sum of the first m mode variances (eq. 14) over the total",
+            "generalization_mm": "leave-one-out: mean Euclidean distance per vertex between each left-out "
+                                 "shape and its description by m modes, averaged over the shapes (mm)",
+            "generalization_sq": "eq. 15: squared norm |x_i - x'_i(m)|^2 over all 3n coordinates, "
+                                 "averaged over the shapes (mm^2)",
+            "specificity_mm": "mean Euclidean distance per vertex between a random shape of the model with "
+                              "m modes and its nearest training shape, averaged over the random shapes (mm)",
+            "specificity_sq": "eq. 16: squared norm |y_i - y'_i(m)|^2, averaged over the random shapes (mm^2)",
+            "se": "standard error of the mean (standard deviation / sqrt(count))",
+        },
+        "dimensions_mm": {
+            "mean": dict(zip(("width", "depth", "height"), _finite(d.mean))),
+            "sd": dict(zip(("width", "depth", "height"), _finite(d.sd))),
+            "per_instance": {n: dict(zip(("width", "depth", "height"), _finite(row)))
+                             for n, row in zip(ev.names, d.per_shape)},
+            "overall_height": {"mean": float(d.overall_height.mean()),
+                               "sd": _finite([d.overall_height.std(ddof=1)])[0]},
+            "definition": "extents in the model's frame: height along z without thin ends (a stalk), width "
+                          "and depth along the major and minor horizontal axes of the mean; overall_height "
+                          "includes the stalk",
+        },
+        "instances": list(ev.names),
+        "settings": dict(ev.settings),
+        "notes": list(ev.notes),
+        "seconds": ev.seconds,
+        "timings_s": dict(ev.timings),
+    }
+    geo = ev.geometric_error
+    if geo is not None:
+        out["geometric_error_mm"] = {
+            "mean": geo.mean_mm, "sd": _finite([geo.sd_mm])[0],
+            "per_instance": dict(zip(geo.names, _finite(geo.per_instance_mm))),
+            "max_per_instance": dict(zip(geo.names, _finite(geo.max_mm))),
+            "map_max": float(geo.per_vertex_mm.max()),
+            "missing": [{"instance": n, "reason": r} for n, r in geo.missing],
+        }
+    else:
+        out["geometric_error_mm"] = None
+    t = ev.landmarks
+    if t is not None:
+        errs = t.errors_mm
+        stats = {k: dict(zip(("mean", "sd", "max"), _finite(v[:3])), n=v[3]) for k, v in t.summary().items()}
+        out["landmarks"] = {
+            "source": ev.landmarks_source,
+            "names": list(t.names),
+            "protocol": "each given landmark -> closest point of its corresponded surface (face, barycentric) "
+                        "-> evaluated on the mean and averaged over the instances -> put on the mean's surface "
+                        "-> carried to every instance through the correspondence; error = distance to the given "
+                        "position",
+            "on_mean_mm": {k: _finite(p) for k, p in zip(t.names, t.on_mean)},
+            "error_mm": {k: stats[k] for k in t.names},
+            "average_mm": stats.get("average", stats[t.names[0]]),
+            "per_instance_mm": {n: dict(zip(t.names, _finite(row))) for n, row in zip(ev.names, errs)},
+            "surface_distance_mm": {n: dict(zip(t.names, _finite(row))) for n, row in zip(ev.names, t.surface_mm)},
+        }
+    else:
+        out["landmarks"] = None
+    return out
+
+
+def metrics_csv(ev: Evaluation) -> str:
+    """The content of ``metrics.csv``: one row per m, the measures as columns."""
+    c, g, s = ev.compactness, ev.generalization, ev.specificity
+    cols = {
+        "modes": c.modes, "compactness": c.ratio, "variance_mm2": c.variance_mm2,
+        "generalization_mm": g.mean_mm, "generalization_se_mm": g.se_mm,
+        "generalization_sq": g.mean_sq, "generalization_se_sq": g.se_sq,
+        "specificity_mm": s.mean_mm, "specificity_se_mm": s.se_mm,
+        "specificity_sq": s.mean_sq, "specificity_se_sq": s.se_sq,
+    }
+    lines = [",".join(cols)]
+    for j in range(len(c.modes)):
+        lines.append(",".join(str(int(v[j])) if k == "modes" else f"{float(v[j]):.9g}" for k, v in cols.items()))
+    return "\n".join(lines) + "\n"
+
+
+def write_evaluation(
+    ev: Evaluation,
+    model,
+    faces,
+    folder,
+    *,
+    aligned: Mapping | None = None,
+    random_state: RandomState = 0,
+    start: float | None = None,
+) -> Evaluation:
+    """Write an evaluation: metrics, error map, plots, pictures and the HTML report.
+
+    Files in ``folder`` (created if needed), all written atomically:
+
+    - ``metrics.json``, ``metrics.csv`` (see :func:`metrics_dict`, :func:`metrics_csv`);
+    - ``error_map.ply`` (the mean shape with a colour per vertex and the
+      distance as the vertex property ``error_mm``), ``error_map.vtk`` (the
+      distance as point data ``error_mm``) and ``error_map.png`` (four views
+      with a colour bar), when there is a geometric error;
+    - ``compactness.png``, ``generalization.png``, ``specificity.png``,
+      ``landmarks.png`` (with landmarks), ``modes.png``, ``samples.png``;
+    - ``report.html``: all of it on one page, pictures embedded.
+
+    Parameters
+    ----------
+    ev : Evaluation
+        From :func:`hortishape.evaluate.evaluate_shapes` (or
+        ``evaluate_model(..., write=False)``).
+    model : ShapeModel
+        The evaluated model (for the mean, the mode and sample pictures).
+    faces : (m, 3) array_like of int
+        Its triangles.
+    folder : path
+    aligned : mapping of str to (n, 3) array_like, optional
+        The aligned surfaces of the instances of uncertain orientation, by
+        name, for their picture. Default: read from the model directory.
+    random_state : int, Generator, SeedSequence or None, default: 0
+        For the random samples pictured.
+    start : float, optional
+        ``time.perf_counter()`` when the evaluation began (for ``seconds``).
+
+    Returns
+    -------
+    Evaluation
+        ``ev`` with ``files``, ``seconds`` and ``timings`` filled in.
+    """
+    from dataclasses import replace
+
+    from .io import read_mesh, write_mesh
+
+    t0 = time.perf_counter()
+    out = Path(folder)
+    out.mkdir(parents=True, exist_ok=True)
+    files: dict[str, Path] = {}
+    mean_mesh = model.to_mesh(model.mean_) if model.faces_ is not None else None
+    if mean_mesh is None:
+        from .mesh import Mesh
+
+        mean_mesh = Mesh(model.mean_, faces)
+
+    files["compactness_png"] = plot_compactness(ev.compactness, out / "compactness.png")
+    files["generalization_png"] = plot_generalization(ev.generalization, out / "generalization.png")
+    files["specificity_png"] = plot_specificity(ev.specificity, out / "specificity.png")
+    geo = ev.geometric_error
+    if geo is not None:
+        values = geo.per_vertex_mm
+        files["error_map_ply"] = write_mesh(out / "error_map.ply", mean_mesh,
+                                            vertex_colors=error_colours(values),
+                                            vertex_scalars={"error_mm": values})
+        files["error_map_vtk"] = write_mesh(out / "error_map.vtk", mean_mesh, vertex_scalars={"error_mm": values})
+        files["error_map_png"] = render_error_map(mean_mesh, values, out / "error_map.png",
+                                                         n_instances=len(geo.names))
+    if ev.landmarks is not None:
+        files["landmarks_png"] = plot_landmark_errors(ev.landmarks, ev.names, out / "landmarks.png")
+    n_modes = min(3, model.n_components_)
+    files["modes_png"] = render_modes(model, out / "modes.png", n_modes=n_modes)
+    files["samples_png"] = render_samples(model, out / "samples.png", random_state=random_state)
+    if ev.uncertain_orientation:
+        if aligned is None:
+            aligned = {n: read_mesh(ModelDir(ev.model_dir).aligned_mesh(n)).vertices for n, _ in ev.uncertain_orientation}
+        files["uncertain_png"] = render_uncertain(
+            mean_mesh, [np.asarray(aligned[n]) for n, _ in ev.uncertain_orientation],
+            [f"{n} ({c:.3f})" for n, c in ev.uncertain_orientation], out / "uncertain_orientation.png")
+    timings = dict(ev.timings)
+    timings["pictures"] = time.perf_counter() - t0
+    seconds = time.perf_counter() - start if start is not None else ev.seconds + timings["pictures"]
+    ev = replace(ev, files=files, timings=timings, seconds=seconds)
+    files["metrics_json"] = atomic_text(out / "metrics.json", json.dumps(metrics_dict(ev), indent=1), HortishapeError)
+    files["metrics_csv"] = atomic_text(out / "metrics.csv", metrics_csv(ev), HortishapeError)
+    files["report"] = write_report(ev, out / "report.html")
+    # files an earlier evaluation wrote that this one did not (no scans, no landmarks now)
+    for stale in ("error_map.ply", "error_map.vtk", "error_map.png", "landmarks.png", "uncertain_orientation.png"):
+        if (out / stale) not in files.values():
+            (out / stale).unlink(missing_ok=True)
+    return replace(ev, files=dict(files))
