@@ -96,10 +96,7 @@ def principal_axes(vertices, faces=None) -> PrincipalAxes:
         the signs) instead of the vertices'. The vertices of a scan's
         marching-cubes surface are denser where the surface runs obliquely
         to the voxel grid, so their principal axes depend on how the fruit
-        lay in the scanner: measured on synthetic scans of the same
-        instances in two poses, up to 21 degrees apart for apples and
-        peppers and 40 for a straight zucchini; the surface's agree within
-        0.4 degrees.
+        lay in the scanner (``docs/design-notes.md``).
 
     Returns
     -------

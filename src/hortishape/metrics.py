@@ -223,8 +223,7 @@ def generalization(
     descriptions for all m at once as combinations of the training shapes,
     so the ``3n x 3n`` covariance and the modes themselves are never formed.
     Every Procrustes starts from a global alignment of all shapes and so
-    converges in a few iterations. 30 shapes of 30,000 vertices take about
-    6 s on one core.
+    converges in a few iterations.
 
     The squared norm (eq. 15) never increases with m: the description is an
     orthogonal projection onto more and more modes. The mean distance per

@@ -54,9 +54,8 @@ One call of :func:`register` does:
    weakly determined by the geometry (a cheek 2-5 % fuller on one side of an
    apple, the largest of 3-4 pepper lobes); for a round reference without
    lobes the warp is damped weakly enough to find it (``ROUND_RIDGE``). On a
-   straight zucchini little but a slightly bent stalk fixes it: the search
-   residuals of twelve twists 30 degrees apart lie within 2 % of each other
-   (measured), and the registration follows the stalk.
+   straight zucchini little but a slightly bent stalk fixes it, and the
+   registration follows the stalk (``docs/design-notes.md``).
 2. **RN-ICP-T iterations**: normal-ray correspondences with the three filters
    (:mod:`hortishape.registration.correspondences`; the crossing filter (c) on the fine level
    only), a least-squares rigid (or, see ``affine``, affine) step on the

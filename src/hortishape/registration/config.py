@@ -148,12 +148,8 @@ class RegistrationConfig:
         the current level. Once the surface sits on the scan, d_t falls to
         thousandths of a millimetre and 20 d_t to a tenth: a part still
         millimetres off, such as a stalk tip overshooting the scan's, loses
-        its last correspondences and stays in the air. Measured with
-        ``benchmarks/registration.py`` (4 upright targets per class), 0
-        against 5: stalk tip error apple 3.8 -> 3.0 mm, pepper 6.8 -> 3.9,
-        pear 6.7 -> 5.8, banana 2.4 -> 0.5, zucchini 10.6 -> 8.7; geometric
-        error pepper 0.027 -> 0.010 mm, zucchini 0.047 -> 0.013; dense error
-        unchanged. ``0`` is the paper's filter.
+        its last correspondences and stays in the air (measurements:
+        ``docs/design-notes.md``). ``0`` is the paper's filter.
     check_crossings : bool, default: True
         Correspondence filter (c) against the reference itself.
     tolerance : float, default: 0.001
@@ -172,38 +168,26 @@ class RegistrationConfig:
         (``up``, landmarks) both search the hint's turns. ``"pca"``: the
         paper's eq. 7 with deterministic axis signs. ``"none"``: the
         reference is used where it is (or where ``initial_transform`` puts
-        it). Measured on six real scans (``benchmarks/real_poles.py``, 30
-        ordered pairs of different fruit): see the README.
+        it). How the choices compare on real scans: the README.
     end_contrast : float, default: 0.15
         ``orientation="axis"`` puts the cavity end on the cavity end, without
         trying the other way, when :attr:`hortishape.align.FruitAxis.contrast`
-        of both scans is at least this. On the synthetic tuning set (21 each
-        of apples, peppers, zucchini, pears and bananas in random poses) the
-        cavity end was the stalk end on every scan with a contrast above
-        0.10; below, the bananas' ends (0.01-0.10) point either way. 0.5
-        first, which left the ends of a pepper reference with 0.19 to the
-        fits: 5 of 12 peppers of a build came out upside down.
+        of both scans is at least this (why 0.15: ``docs/design-notes.md``).
     axis_turns : int, default: 4
         Turns about the axis that ``orientation="axis"`` tries, equally
         spaced from the one that puts the reference's widest direction
         across the axis on the target's (:func:`hortishape.align.axis_alignments`);
         the refinement after the search closes the rest. The search's
-        residual tells turns apart poorly: with 12 turns (30 degrees apart)
-        3 of 8 synthetic apples in a random pose ended 70-134 degrees turned
-        (``benchmarks/registration.py --n 9``).
+        residual tells turns apart poorly, so more turns do not help
+        (``docs/design-notes.md``).
     search_iterations : int, default: 6
         Iterations of each orientation candidate's coarse registration.
     search_finalists : int, default: 3
         The best this many candidates of the search are judged again by the
         same short registration on the coarse level (2,500 vertices instead
         of 800), which decides (1: the search level decides). On the search
-        level the score of a candidate moves by about 5 % with the scan's
-        triangulation alone: one pepper scanned in two poses had its right
-        candidate and one turned 90 degrees scoring 0.424 and 0.476 in one
-        pose, 0.453 and 0.452 in the other; on the coarse level 0.403 and
-        0.454, 0.403 and 0.448. Over ``benchmarks/registration.py`` (4
-        targets x 2 poses x 5 classes) the coarse level never turned a right
-        choice into a wrong one.
+        level a candidate's score moves by about 5 % with the scan's
+        triangulation alone (``docs/design-notes.md``).
     orientation_rank : int, default: 0
         Start from the candidate with this rank (0: the best score; the
         finalists first, by their coarse-level score).
@@ -218,19 +202,7 @@ class RegistrationConfig:
         from the rotation of the winner's affine map. Width and depth vary
         independently of a fruit's anatomy (Table 1: 82 +/- 4 and
         82 +/- 4 mm for apples); a rigid fit turns a reference to lay its
-        wider side along the scan's wider side. Measured on one pear: rigid
-        ICP started at the true pose converged 76 degrees away, from every
-        start; affine ICP 12 degrees. With ``benchmarks/registration.py`` (4
-        targets x 2 poses x 5 classes), ``False`` against ``True``: wrong
-        orientations (more than 45 degrees off) 5 -> 2 of 40 (the two left
-        are one straight zucchini, see the package notes); dense
-        correspondence error pepper 15.4 / 2.4 -> 1.7 / 2.4 mm (upright /
-        random pose), pear 8.3 / 8.3 -> 1.8 / 1.8 mm, apple 2.7 / 3.3 ->
-        2.6 / 3.3 mm. Refining from the affine map itself instead of its
-        rotation: apple 3.7 / 6.2, pepper 2.9 / 5.1 mm. Measured again with
-        the surface's principal axes, ``search_finalists`` and the search
-        stiffness of ``SEARCH_VERTICES``: wrong orientations 7 -> 1 of 40,
-        pepper 24.8 / 11.6 -> 1.6 / 2.1 mm, pear 8.3 / 8.5 -> 1.8 / 1.5 mm.
+        wider side along the scan's wider side (``docs/design-notes.md``).
     search_taper : {"auto", True, False}, default: "auto"
         The global step of the search's short registrations also fits a
         taper about the reference's symmetry axis (cross-sections widening
@@ -238,14 +210,7 @@ class RegistrationConfig:
         wider than the reference's bottom is not fitted better upside down.
         ``"auto"``: for a round reference only (one that ``warp="auto"``
         tapers); on an elongated one the taper is part of what tells the
-        ends apart (a zucchini's club). Measured with
-        ``benchmarks/registration.py --n 21`` (20 targets x 2 poses per
-        class): without it 4 of 20 peppers came out upside down in both
-        poses (their tops 9-13 % wider than their middle, the reference's
-        7 % narrower; dense error 15.0 / 15.4 mm upright / random), with it
-        one in the random pose (a pepper wider than tall whose two ends
-        scored within 0.1 %; ``coverage_check`` catches it); on zucchini it
-        turned one end over end.
+        ends apart (a zucchini's club; ``docs/design-notes.md``).
     coverage_check : bool, default: True
         After the registration, the fraction of the scan's vertices (20,000
         of them, evenly spread) farther than ``UNCOVERED_EDGES`` (2) edge
@@ -254,12 +219,8 @@ class RegistrationConfig:
         stalk, when the reference came out upside down), and the
         registration is run again from the best search candidate turned by
         more than ``ALTERNATIVE_TURN`` (45) degrees from the chosen one; the
-        result that leaves less uncovered is kept. Measured with
-        ``benchmarks/registration.py --n 21``: good registrations leave
-        0-0.5 % uncovered (pears the most: their stalk tips), an upside-down
-        pepper 4 %, two zucchini whose stalk the warp missed 1.4-1.8 %.
-        Costs a nearest-vertex query (about 0.02 s), and a second
-        registration when it fires.
+        result that leaves less uncovered is kept. Costs a nearest-vertex
+        query, and a second registration when it fires.
     up : (3,) tuple of float, optional
         The reference and every target stand with the stalk towards this
         direction (e.g. ``(0, 0, 1)``: scanned upright on the scanner's bed):
@@ -271,10 +232,8 @@ class RegistrationConfig:
         After the principal-axis candidates, the best one is also tried
         turned about its stalk axis (the principal axis whose variance
         stands apart) in this many equal steps (0: not at all). Off by
-        default: with 12 it fixed one apple's twist (15 -> 9 degrees) but
-        broke another's (9 -> 52) and a pepper's (20 -> 102) in
-        ``benchmarks/registration.py`` (4 targets x 2 poses x 5 classes):
-        the search residual does not tell twists apart reliably.
+        default: the search residual does not tell twists apart reliably
+        (``docs/design-notes.md``).
     rigid_steps : bool, default: True
         The global least-squares step (rigid or affine, see ``affine``) in
         every iteration.
@@ -285,9 +244,8 @@ class RegistrationConfig:
         least-squares fit of the kept pairs instead of a rigid one;
         ``"all"``: in every iteration; ``"none"``: rigid steps only. Affine
         fits that would reflect or squash the surface (a singular value
-        outside [1/3, 3]) fall back to rigid. ``"stiff"`` doubled the
-        apples' dense correspondence error (``benchmarks/registration.py``,
-        measured when the search was still rigid).
+        outside [1/3, 3]) fall back to rigid (why rigid by default:
+        ``docs/design-notes.md``).
     warp : {"auto", "affine", "taper", "quadratic", "none"}, default: "auto"
         The paper's initializing globally affine step (section 1: "an
         initializing globally affine step is added. Therefore, using only
@@ -303,21 +261,7 @@ class RegistrationConfig:
         cross-sections widen or narrow along the axis), which fruit vary by
         and an affine map cannot take up; ``"auto"`` takes the quadratic map
         for elongated references (``ELONGATED``) and the taper for round
-        ones. Measured, round fruit (same benchmark), taper against affine:
-        dense error apple 1.97 / 2.31 -> 0.83 / 1.33 mm (upright / random),
-        pepper 1.64 / 2.05 -> 0.93 / 1.47 mm, stalk tips within 0.1 mm
-        (about the principal axis that stands apart instead of the
-        concavity axis: apple 1.50 / 1.90 mm);
-        the full quadratic map: apple 1.22 / 1.51 but stalk tip 3.0 / 3.2 ->
-        3.7 / 4.0 mm, pepper 3.21 / 3.04 mm (its terms along the axis slide
-        the surface up or down the sides).
-        Measured with ``benchmarks/registration.py`` (4 targets per class
-        and pose), affine against ``"none"``: dense correspondence error
-        apple 2.8 -> 2.4 mm (upright) and 3.6 -> 3.2 mm (random pose),
-        pepper (random) 4.6 -> 2.6 mm, banana 5.9 -> 3.0 mm; but the apples'
-        stalk-tip error 2.1 -> 3.9 mm and zucchini 41 -> 49 mm. Quadratic,
-        for zucchini: 24 mm, then 13.6 mm once the map started from matched
-        centroids and had ``warp_prior``.
+        ones (how they compare: ``docs/design-notes.md``).
     warp_ridge : float or "auto", default: "auto"
         Damping of the warp's Gauss-Newton steps, relative to the mean
         diagonal of the normal equations. ``"auto"``: ``ROUND_RIDGE`` (weak)
@@ -328,8 +272,7 @@ class RegistrationConfig:
         quadratic terms of the warp towards zero. The sides of an elongated
         fruit barely constrain sliding along its length, and a free quadratic
         slides the middle of a zucchini to match a different neck or club
-        (measured, 8 zucchini: dense error 4.6 -> 2.9 mm on average over the
-        six bent ones; banana 1.7 -> 1.3 mm; pear 1.1 -> 1.5 mm).
+        (``docs/design-notes.md``).
     final_beta : float or None, default: 0.1
         Stiffness of the closing step that lands matched vertices on the
         target (``None``: no closing step).

@@ -14,7 +14,7 @@ the candidate there; it is kept only if
     against the source itself rejects hits behind a fold of the source.
 
 When both directions give a kept hit the nearer one wins. Ray casting uses
-Embree (``embreex``) when available: 30k rays cost about 10 ms.
+Embree (``embreex``) when available.
 """
 
 from __future__ import annotations
@@ -469,10 +469,9 @@ def _nearest_vertices(vertices: np.ndarray, points: np.ndarray) -> np.ndarray:
 def _uncovered_fraction(reg: Registration, target: TargetSurface, distance: float, samples: int = 20_000) -> float:
     """Fraction of the target's vertices (up to ``samples``, evenly spread) farther than ``distance`` from every vertex of ``reg``.
 
-    Distances to the nearest registered vertex (a k-d tree, a few tens of
-    milliseconds, where the distance to the surface would need an AABB tree
-    of the registered faces, 0.2-0.4 s); at twice the edge length the two
-    tell the same places apart.
+    Distances to the nearest registered vertex (a k-d tree, far cheaper
+    than the distance to the surface through an AABB tree of the registered
+    faces); at twice the edge length the two tell the same places apart.
     """
     from scipy.spatial import cKDTree
 

@@ -41,8 +41,7 @@ def _repair_folds(
     """Replace the displacement around folded faces by its harmonic fill-in.
 
     Where a stalk of the reference meets a differently bent or placed stalk
-    on the scan, the elastic steps can fold a few triangles over (measured:
-    63 faces at the stalk base of a zucchini registered with a wrong twist).
+    on the scan, the elastic steps can fold a few triangles over.
     The displacement from ``placed`` (the globally placed reference) of the
     folded faces' vertices and ``rings`` rings around them is replaced by
     the harmonic interpolation of the displacement around them (graph

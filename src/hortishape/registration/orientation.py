@@ -64,9 +64,7 @@ def _search_orientation(
 
     Returns the score of each candidate (lower is better) and its refined
     transform. On a round fruit the rigid fit cannot tell the stalk end from
-    a side (measured: the principal axes put the stalk 90 degrees off for 3
-    of 8 apples, and rigid ICP from all 24 rotations picks wrong ones too),
-    but after a stiff elastic registration the residual can: the elastic
+    a side (``docs/design-notes.md``), but after a stiff elastic registration the residual can: the elastic
     step absorbs size and aspect differences, and what remains is the
     mismatch of features such as the stalk cavity, the calyx basin or the
     necks, which a stiff surface cannot absorb. The score is the mean ray
@@ -108,8 +106,7 @@ def _search_taper(cfg: RegistrationConfig, vertices: np.ndarray) -> bool:
     """Whether the search's global steps fit a taper: ``cfg.search_taper``, for ``"auto"`` only on a round reference.
 
     On an elongated fruit the taper is part of what tells the ends apart (a
-    zucchini's club): a taper in the global step takes it out of the score
-    (measured: one of 20 zucchini turned end over end).
+    zucchini's club): a taper in the global step takes it out of the score.
     """
     if cfg.search_taper == "auto":
         return _warp_kind("auto", vertices) == "taper"
@@ -216,8 +213,7 @@ def _keep_hinted(template: Template, target: TargetSurface, cands: np.ndarray, s
     themselves: on a round fruit those lie up to about 40 degrees from the
     stalk axis. Nor does it replace them by turns about the hinted axis
     alone: a scan leans on the bed, and with every candidate off by the lean
-    the stiff search no longer tells the turns apart (measured on synthetic
-    apples leaning 10 degrees: 3 of 4 ended turned about 142 degrees). The
+    the stiff search no longer tells the turns apart. The
     turns are searched only when no candidate keeps the hint.
     """
     su, tu = hint

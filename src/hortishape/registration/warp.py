@@ -96,11 +96,9 @@ def _concavity_axis(lev: _Level, positions: np.ndarray, fraction: float = 0.1) -
 
     A fruit's pits lie on its stalk axis: the stalk cavity and the calyx
     basin of an apple, the stalk cavity and blossom end of a pepper (whose
-    creases between the lobes run along the axis). Measured on the
-    benchmark's apples and peppers (2,500-vertex coarse levels, 20 scans):
-    within 2 degrees of the true stalk axis, where the principal axis whose
-    variance stands apart (:func:`_symmetry_axis`) was up to 38 degrees off
-    on a near-spherical apple and 90 on a pepper. Concavity is the umbrella
+    creases between the lobes run along the axis), where the principal
+    axis whose variance stands apart (:func:`_symmetry_axis`) can lie far
+    off on a near-spherical fruit (``docs/design-notes.md``). Concavity is the umbrella
     operator along the normal: how far outward the neighbours' mean lies.
     """
     lap = lev.laplacian
