@@ -401,9 +401,9 @@ def specificity(
         raise ValueError(f"n_samples must be an integer of at least 2, got {n_samples!r}")
     ms = _modes_list(modes, model.n_components_, "specificity")
     if model.procrustes:
-        from .procrustes import _apply, _fit_transforms
+        from ._shapes import apply_transforms, fit_transforms
 
-        x = _apply(_fit_transforms(x, model.mean_, np.full(x.shape[1], 1.0 / x.shape[1]), False), x)
+        x = apply_transforms(fit_transforms(x, model.mean_, np.full(x.shape[1], 1.0 / x.shape[1]), False), x)
     n_points = x.shape[1]
     phi = model.components_
     sd = np.sqrt(model.explained_variance_)

@@ -42,15 +42,10 @@ import numpy as np
 import numpy.typing as npt
 
 from ._rng import RandomState, as_generator
+from ._shapes import apply_transforms, as_shapes, as_weights, fit_transforms
 from .errors import HortishapeError, MeshError, NotFittedError
 from .mesh import Mesh, check_mesh
-from .procrustes import (
-    _apply,
-    _as_shapes,
-    _as_weights,
-    _fit_transforms,
-    generalized_procrustes,
-)
+from .procrustes import generalized_procrustes
 from .statismo import ModelData, read_model, write_model
 
 __all__ = ["ShapeFit", "ShapeModel", "fit_pose_and_shape"]
@@ -193,7 +188,7 @@ class ShapeModel:
             ``n_components`` asks for more modes than the data have.
         """
         n_comp = _check_n_components(self.n_components)
-        x, mesh_faces = _as_shapes(shapes)
+        x, mesh_faces = as_shapes(shapes)
         n_shapes, n_points = x.shape[:2]
         if n_shapes < 3:
             raise MeshError(f"a shape model needs at least 3 training shapes, got {n_shapes}")
@@ -284,7 +279,7 @@ class ShapeModel:
             )
 
     def _shapes(self, shapes, name: str = "shapes") -> np.ndarray:
-        x, _ = _as_shapes(shapes, name=name, allow_single=True)
+        x, _ = as_shapes(shapes, name=name, allow_single=True)
         if x.shape[1] != self.n_points_:
             raise MeshError(
                 f"{name} have {x.shape[1]} points, the model has {self.n_points_}: "
@@ -349,7 +344,7 @@ class ShapeModel:
         x = self._shapes(shapes)
         if self.procrustes:
             w = np.full(x.shape[1], 1.0 / x.shape[1])
-            x = _apply(_fit_transforms(x, self.mean_, w, False), x)
+            x = apply_transforms(fit_transforms(x, self.mean_, w, False), x)
         b = (x.reshape(len(x), -1) - self.mean_.reshape(-1)) @ self.components_.T
         return b / np.sqrt(self.explained_variance_)
 
@@ -792,7 +787,7 @@ def fit_pose_and_shape(
         raise ValueError(f"max_iter must be a non-negative integer, got {max_iter!r}")
     if not (np.isfinite(tol) and tol >= 0):
         raise ValueError(f"tol must be a non-negative number, got {tol!r}")
-    w = _as_weights(weights, n)
+    w = as_weights(weights, n)
     sw = np.sqrt(w)
     mean = model.mean_
     phi = model.components_[:m].reshape(m, n, 3)
@@ -800,7 +795,7 @@ def fit_pose_and_shape(
     tiny = 1e-26 * max(size2, float(w @ (y**2).sum(axis=1)), 1e-300)
 
     def kabsch(src: np.ndarray) -> np.ndarray:
-        return _fit_transforms(src[None], y, w, False)[0]
+        return fit_transforms(src[None], y, w, False)[0]
 
     def shape_of(b: np.ndarray) -> np.ndarray:
         return mean + np.einsum("k,knd->nd", b, phi) if m else mean

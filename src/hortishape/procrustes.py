@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from ._shapes import apply_transforms, as_shapes, as_weights, fit_transforms
 from .errors import ConvergenceWarning, MeshError
 from .mesh import Mesh
 
@@ -68,119 +69,6 @@ class Procrustes:
     mean: np.ndarray
     n_iter: int
     converged: bool = True
-
-
-# --------------------------------------------------------------------------
-# input checks (shared with hortishape.model)
-# --------------------------------------------------------------------------
-
-
-def _as_shapes(shapes, *, name: str = "shapes", allow_single: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
-    """``(N, n, 3)`` float64 copy of ``shapes`` and the common faces of Mesh input.
-
-    ``shapes`` is an ``(N, n, 3)`` array, a sequence of ``(n, 3)`` arrays or
-    a sequence of :class:`Mesh` (which must all have the same faces). With
-    ``allow_single`` a single ``(n, 3)`` array or Mesh is taken as ``N = 1``.
-    """
-    faces = None
-    if isinstance(shapes, Mesh):
-        if not allow_single:
-            raise MeshError(f"{name} must be several shapes (N, n, 3), got a single Mesh")
-        shapes = [shapes]
-    if isinstance(shapes, Sequence) and not isinstance(shapes, (str, bytes)) and len(shapes) > 0 \
-            and all(isinstance(s, Mesh) for s in shapes):
-        faces = shapes[0].faces
-        for i, s in enumerate(shapes[1:], start=1):
-            if s.faces.shape != faces.shape or not np.array_equal(s.faces, faces):
-                raise MeshError(
-                    f"{name}[{i}] has other faces than {name}[0]: corresponded shapes share one triangulation"
-                )
-        arrays = [s.vertices for s in shapes]
-        if len({a.shape for a in arrays}) > 1:
-            raise MeshError(f"{name} have different numbers of vertices (unreferenced vertices?)")
-        x = np.array(arrays, dtype=np.float64)
-        return x, np.array(faces, dtype=np.int64)
-    if isinstance(shapes, Sequence) and not isinstance(shapes, (str, bytes)) and len(shapes) > 0:
-        try:
-            sizes = {np.shape(s) for s in shapes}
-        except Exception:  # pragma: no cover - exotic sequences
-            sizes = set()
-        if len(sizes) > 1:
-            raise MeshError(
-                f"{name} have different sizes {sorted(sizes, key=str)}: every shape needs the same "
-                "number of corresponding points"
-            )
-    try:
-        x = np.array(shapes, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise MeshError(f"{name} must be a numeric array of shape (N, n, 3) ({exc})") from None
-    if allow_single and x.ndim == 2:
-        x = x[None]
-    if x.ndim != 3 or x.shape[2] != 3:
-        want = "(N, n, 3) or (n, 3)" if allow_single else "(N, n, 3)"
-        raise MeshError(f"{name} must have shape {want}, got {x.shape}")
-    if x.shape[0] == 0 or x.shape[1] == 0:
-        raise MeshError(f"{name} is empty: shape {x.shape}")
-    if not np.isfinite(x).all():
-        bad = np.unique(np.nonzero(~np.isfinite(x))[0])
-        raise MeshError(
-            f"{name} contain NaN or infinite coordinates (shape{'s' if len(bad) > 1 else ''} "
-            f"{', '.join(map(str, bad[:10]))}{', ...' if len(bad) > 10 else ''})"
-        )
-    return x, faces
-
-
-def _as_weights(weights, n: int) -> np.ndarray:
-    """Normalised ``(n,)`` point weights (all equal when ``weights`` is None)."""
-    if weights is None:
-        return np.full(n, 1.0 / n)
-    w = np.array(weights, dtype=np.float64)
-    if w.shape != (n,):
-        raise ValueError(f"weights must have shape ({n},), one per point, got {w.shape}")
-    if not np.isfinite(w).all() or (w < 0).any() or w.sum() <= 0:
-        raise ValueError("weights must be finite, non-negative and not all zero")
-    return w / w.sum()
-
-
-# --------------------------------------------------------------------------
-# batched least-squares transforms (Kabsch / Umeyama)
-# --------------------------------------------------------------------------
-
-
-def _fit_transforms(sources: np.ndarray, target: np.ndarray, w: np.ndarray, scaling: bool) -> np.ndarray:
-    """``(N, 4, 4)`` transforms taking each of ``sources (N, n, 3)`` onto ``target (n, 3)``.
-
-    Minimises ``sum_j w_j |s R p_ij + t - q_j|^2`` over rotations ``R`` (no
-    reflections), translations ``t`` and, with ``scaling``, ``s > 0``
-    (Kabsch; Umeyama 1991 for the scale). ``w`` sums to 1.
-    """
-    cs = w @ sources  # (N, 3) weighted centroids
-    ct = w @ target
-    a = sources - cs[:, None, :]
-    b = target - ct
-    h = np.swapaxes(a, 1, 2) @ (b * w[:, None])  # (N, 3, 3) cross-covariances
-    u, sig, vt = np.linalg.svd(h)
-    v = np.swapaxes(vt, 1, 2)
-    d = np.sign(np.linalg.det(v @ np.swapaxes(u, 1, 2)))
-    d[d == 0] = 1.0
-    dm = np.ones((len(sources), 3))
-    dm[:, 2] = d
-    r = (v * dm[:, None, :]) @ np.swapaxes(u, 1, 2)
-    if scaling:
-        var_src = (a * a).sum(axis=2) @ w
-        s = (sig * dm).sum(axis=1) / np.where(var_src > 0, var_src, 1.0)
-        s = np.where(var_src > 0, s, 1.0)
-        r = r * s[:, None, None]
-    t = np.empty((len(sources), 4, 4))
-    t[:, :3, :3] = r
-    t[:, :3, 3] = ct - np.einsum("ikl,il->ik", r, cs)
-    t[:, 3] = [0.0, 0.0, 0.0, 1.0]
-    return t
-
-
-def _apply(transforms: np.ndarray, shapes: np.ndarray) -> np.ndarray:
-    """Apply ``(N, 4, 4)`` transforms to ``(N, n, 3)`` shapes."""
-    return shapes @ np.swapaxes(transforms[:, :3, :3], 1, 2) + transforms[:, None, :3, 3]
 
 
 def _rms_size(points: np.ndarray, w: np.ndarray) -> float:
@@ -251,7 +139,7 @@ def generalized_procrustes(
     >>> bool(np.allclose(gpa.aligned, base, atol=1e-9)), gpa.transforms.shape
     (True, (3, 4, 4))
     """
-    x, _ = _as_shapes(shapes)
+    x, _ = as_shapes(shapes)
     n_shapes, n = x.shape[:2]
     if n < 3:
         raise MeshError(f"shapes need at least 3 corresponding points each, got {n}")
@@ -259,7 +147,7 @@ def generalized_procrustes(
         raise ValueError(f"tol must be a positive number, got {tol!r}")
     if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
         raise ValueError(f"max_iter must be a positive integer, got {max_iter!r}")
-    w = _as_weights(weights, n)
+    w = as_weights(weights, n)
     first = x[0]
     if _rms_size(first, w) == 0:
         raise MeshError("shapes[0] has all its (weighted) points at one place: its pose is undefined")
@@ -268,9 +156,9 @@ def generalized_procrustes(
     converged = False
     n_iter = 0
     for n_iter in range(1, int(max_iter) + 1):
-        mean = _apply(_fit_transforms(x, reference, w, scaling), x).mean(axis=0)
+        mean = apply_transforms(fit_transforms(x, reference, w, scaling), x).mean(axis=0)
         # gauge: the mean in the pose (and size) of the first shape
-        gauge = _fit_transforms(mean[None], first, w, scaling)[0]
+        gauge = fit_transforms(mean[None], first, w, scaling)[0]
         new_reference = mean @ gauge[:3, :3].T + gauge[:3, 3]
         size = _rms_size(new_reference, w)
         change = float(np.sqrt(w @ ((new_reference - reference) ** 2).sum(axis=1)))
@@ -285,8 +173,8 @@ def generalized_procrustes(
             ConvergenceWarning,
             stacklevel=2,
         )
-    transforms = _fit_transforms(x, reference, w, scaling)
-    aligned = _apply(transforms, x)
+    transforms = fit_transforms(x, reference, w, scaling)
+    aligned = apply_transforms(transforms, x)
     return Procrustes(aligned, transforms, aligned.mean(axis=0), n_iter, converged)
 
 
@@ -331,14 +219,14 @@ def procrustes_align(
     >>> bool(np.allclose(aligned, ref)), round(float(np.linalg.det(t[:3, :3])) ** (1 / 3), 6)
     (True, 0.5)
     """
-    s, _ = _as_shapes(shape, name="shape", allow_single=True)
-    r, _ = _as_shapes(reference, name="reference", allow_single=True)
+    s, _ = as_shapes(shape, name="shape", allow_single=True)
+    r, _ = as_shapes(reference, name="reference", allow_single=True)
     if s.shape[0] != 1 or r.shape[0] != 1:
         raise MeshError(f"shape and reference must each be one (n, 3) array, got {s.shape} and {r.shape}")
     if s.shape != r.shape:
         raise MeshError(f"shape and reference must have the same number of points, got {s.shape[1]} and {r.shape[1]}")
     if s.shape[1] < 3:
         raise MeshError(f"at least 3 corresponding points are needed, got {s.shape[1]}")
-    w = _as_weights(weights, s.shape[1])
-    t = _fit_transforms(s, r[0], w, scaling)
-    return _apply(t, s)[0], t[0]
+    w = as_weights(weights, s.shape[1])
+    t = fit_transforms(s, r[0], w, scaling)
+    return apply_transforms(t, s)[0], t[0]
