@@ -45,7 +45,6 @@ All writers are atomic: data go to a temporary file next to the target,
 which replaces the target only once complete.
 """
 
-from .._files import atomic_path  # noqa: F401  (its old home; hortishape._files is the one to use)
 from .mesh_files import MeshData, is_mesh_file, mesh_formats, read_mesh, read_mesh_data, write_mesh
 from .volume import Volume
 from .volume_files import read_volume, volume_formats, write_volume
