@@ -138,6 +138,7 @@ def test_orientation_consensus_keeps_the_registration_that_agrees_with_the_other
     # runner-up and turned end over end, and keeps whichever lies nearest the
     # others' mean
     from hortishape.align import rotation_about, rigid_transform
+    from hortishape.layout import ModelDir
     from hortishape.pipeline import _end_over_end, _orientation_consensus
 
     extra = tmp_path / "more"
@@ -165,15 +166,16 @@ def test_orientation_consensus_keeps_the_registration_that_agrees_with_the_other
         calls.append(([p.stem for p in paths], folder.name))
         return register_files(template, paths, folder, config=cfg, n_jobs=1, initial_transforms=starts)
 
-    records = _orientation_consensus(files, tmp_path, again, CONFIG, flip=_end_over_end(template))
+    layout = ModelDir(tmp_path)
+    records = _orientation_consensus(files, layout, again, CONFIG, flip=_end_over_end(template))
     assert {folder for names, folder in calls if bad.stem in names} == {"first-pass-rank1", "first-pass-flipped"}
     for r in records:
         tried = {"first": r["distance_mm"], "runner-up": r["runner_up_distance_mm"], "flipped": r["flipped_distance_mm"]}
         assert r["kept"] == min((d, k) for k, d in tried.items() if d is not None)[1]
     rec = {r["name"]: r for r in records}[bad.stem]
     assert rec["kept"] != "first" and min(rec["runner_up_distance_mm"], rec["flipped_distance_mm"]) < rec["distance_mm"]
-    folder = {"runner-up": "first-pass-rank1", "flipped": "first-pass-flipped"}[rec["kept"]]
-    assert files[bad] == tmp_path / folder / f"{bad.stem}.ply"
+    folder = {"runner-up": layout.first_pass_runner_up, "flipped": layout.first_pass_flipped}[rec["kept"]]
+    assert files[bad] == folder / f"{bad.stem}.ply"
     # the kept surface is right side up: its stalk-tip vertex near the scan's stalk tip
     truth = synth.read_truth(bad)
     kept = read_mesh(files[bad]).vertices
