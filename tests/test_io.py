@@ -1137,3 +1137,31 @@ def test_reads_a_real_scan_in_metres():
     assert trimesh.Trimesh(mesh.vertices, mesh.faces, process=False).is_watertight
     first = path.read_text().split("end_header\n", 1)[1].splitlines()[0].split()
     np.testing.assert_allclose(mesh.vertices[0], [float(x) for x in first[:3]])
+
+
+def test_point_clouds_round_trip_and_mesh_files_give_their_vertices(tmp_path, shuffled_sphere):
+    from hortishape.io import read_points, write_points
+
+    rng = np.random.default_rng(0)
+    points, normals = rng.normal(size=(50, 3)), rng.normal(size=(50, 3))
+    path = write_points(tmp_path / "seen.ply", points, normals=normals)
+    cloud = read_points(path)
+    np.testing.assert_array_equal(cloud.points, points)
+    np.testing.assert_array_equal(cloud.normals, normals)
+    assert cloud.faces.shape == (0, 3)
+    assert read_points(write_points(tmp_path / "bare.ply", points)).normals is None
+    # a mesh file: its vertices, in order, and its faces; no normals from the file
+    mesh_path = write_mesh(tmp_path / "scan.obj", shuffled_sphere)
+    cloud = read_points(mesh_path)
+    np.testing.assert_array_equal(cloud.points, shuffled_sphere.vertices)
+    assert len(cloud.faces) == shuffled_sphere.n_faces and cloud.normals is None
+    # errors name the file
+    with pytest.raises(MeshError, match="point clouds are written as .ply"):
+        write_points(tmp_path / "seen.stl", points)
+    with pytest.raises(MeshError, match=_starts_with_path(tmp_path / "missing.ply", "no such file")):
+        read_points(tmp_path / "missing.ply")
+    (tmp_path / "empty.ply").write_bytes(b"")
+    with pytest.raises(MeshError, match="empty"):
+        read_points(tmp_path / "empty.ply")
+    with pytest.raises(MeshError, match="finite"):
+        write_points(tmp_path / "nan.ply", np.full((3, 3), np.nan))

@@ -28,6 +28,12 @@ Backends: PLY, STL, OBJ, OFF and writing legacy VTK are implemented with numpy
 reading or writing ``.vtp`` use the optional ``vtk`` package
 (``pip install "hortishape[vtk]"``), imported only when needed.
 
+Point clouds
+------------
+:func:`read_points` reads what a depth camera or a partial scan gives: a
+PLY file without faces (its ``nx``, ``ny``, ``nz`` properties as normals),
+or the vertices of any mesh file; :func:`write_points` writes one.
+
 Volumes
 -------
 :class:`Volume` holds ``data`` indexed ``[x, y, z]``: ITK and SimpleITK
@@ -46,18 +52,22 @@ which replaces the target only once complete.
 """
 
 from .mesh_files import MeshData, is_mesh_file, mesh_formats, read_mesh, read_mesh_data, write_mesh
+from .point_files import PointCloud, read_points, write_points
 from .volume import Volume
 from .volume_files import read_volume, volume_formats, write_volume
 
 __all__ = [
     "MeshData",
+    "PointCloud",
     "Volume",
     "is_mesh_file",
     "mesh_formats",
     "read_mesh",
     "read_mesh_data",
+    "read_points",
     "read_volume",
     "volume_formats",
     "write_mesh",
+    "write_points",
     "write_volume",
 ]
