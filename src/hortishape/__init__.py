@@ -5,11 +5,12 @@ models of horticultural products", Food and Bioprocess Technology 10:2100-2112.
 All lengths are in millimetres.
 
 Submodules are imported on use, so ``import hortishape`` stays light:
-``hortishape.io``, ``hortishape.synth`` and so on.
+``hortishape.io``, ``hortishape.synth`` and so on. ``hortishape.fit_partial``
+(a model fitted to a partial scan, :mod:`hortishape.partial`) is imported
+when first used.
 """
 
-from importlib.metadata import PackageNotFoundError, version
-
+from ._version import __version__
 from .errors import (
     ConvergenceWarning,
     HortishapeError,
@@ -18,16 +19,22 @@ from .errors import (
     VolumeError,
 )
 
-try:
-    __version__ = version("hortishape")
-except PackageNotFoundError:  # running from a source tree without install
-    __version__ = "0.0.0+unknown"
-
 __all__ = [
     "ConvergenceWarning",
+    "PartialFitter",
+    "fit_partial",
     "HortishapeError",
     "MeshError",
     "NotFittedError",
     "VolumeError",
     "__version__",
 ]
+
+
+def __getattr__(name: str):
+    # the partial fit is a top-level name without making every import of hortishape load it
+    if name in ("fit_partial", "PartialFitter"):
+        from . import partial
+
+        return getattr(partial, name)
+    raise AttributeError(f"module 'hortishape' has no attribute {name!r}")

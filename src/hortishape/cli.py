@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 from typing import Callable, Sequence
 
-from . import __version__
+from ._version import __version__
 from .errors import HortishapeError
 
 EPILOG = (
@@ -176,6 +176,10 @@ def _add_synth(sub) -> None:
     p.add_argument("--vertices", type=_positive_int, default=None, metavar="V",
                    help="about how many vertices per scan (default: drawn between 70,000 and 130,000)")
     p.add_argument("--volumes", action="store_true", help="also write a CT-like intensity volume per instance")
+    p.add_argument("--view", type=_positive_int, default=None, metavar="K",
+                   help="also write what a depth camera sees of each instance from K random directions: "
+                        "OUT/views/<name>.view<j>.ply point clouds (1 point per mm^2 of outline, with normals, 0.2 mm "
+                        "depth noise) and <name>.views.json (for 'fit --partial')")
     p.add_argument("--family", default="standard", metavar="F",
                    help="shape family of the product (listed above)")
     p.add_argument("--jobs", type=_positive_int, default=None, metavar="J",
@@ -189,13 +193,15 @@ def _run_synth(args) -> int:
     start = time.perf_counter()
     rows = write_population(
         args.product, args.n, args.out, random_state=args.seed, pose=args.pose, noise=args.noise,
-        n_vertices=args.vertices, volumes=args.volumes, n_jobs=args.jobs, family=args.family,
+        n_vertices=args.vertices, volumes=args.volumes, n_jobs=args.jobs, family=args.family, views=args.view or 0,
         progress=_progress(args.n, f"synth {args.product}"),
     )
     print(f"{'instance':<14}{'vertices':>10}{'width':>9}{'depth':>9}{'height':>9}   (mm)")
     for r in rows:
         w, d, h = r["dimensions_mm"]
         print(f"{r['name']:<14}{r['n_vertices']:>10,}{w:>9.1f}{d:>9.1f}{h:>9.1f}")
+    if args.view:
+        print(f"wrote {args.view} depth view(s) per instance: {Path(args.out) / 'views'}/<name>.view<j>.ply")
     print(f"wrote {len(rows)} {args.product} scans with ground truth to {args.out} "
           f"in {time.perf_counter() - start:.1f} s")
     return 0
@@ -585,11 +591,24 @@ def _add_fit(sub) -> None:
                      "distances, and writes the reconstruction in the scan's coordinates."),
         epilog=EPILOG, formatter_class=_Formatter)
     p.add_argument("model", type=Path, metavar="MODEL", help="model file (model.h5; Statismo or Scalismo, HDF5 or HDF5-JSON)")
-    p.add_argument("scan", type=Path, metavar="SCAN", help="the new scan (mesh file, mm)")
-    p.add_argument("--out", type=Path, default=None, metavar="FILE",
-                   help="reconstruction mesh (default: <scan stem>_fit.ply beside the current folder)")
+    p.add_argument("scan", type=Path, metavar="SCAN",
+                   help="the new scan (mesh file, mm); with --partial also a point cloud (PLY without faces)")
+    p.add_argument("--out", type=Path, default=None, metavar="PATH",
+                   help="reconstruction mesh (default: <scan stem>_fit.ply in the current folder, or with "
+                        "--partial the output folder <scan stem>_partial)")
     p.add_argument("--modes", type=_positive_int, default=None, help="modes to fit (default: all)")
     p.add_argument("--json", type=Path, default=None, metavar="FILE", help="also write the figures as JSON")
+    g = p.add_argument_group(
+        "partial scans",
+        "--partial fits SCAN as what was seen of one side of the fruit (a depth camera's points, an open mesh; "
+        "in any pose, stray points such as a table are left out) and completes it: the whole surface with the "
+        "model's vertex order in the scan's coordinates, the posterior SD of every vertex and of the volume. "
+        "Writes DIR/<stem>.ply (with the vertex property sd_mm), DIR/<stem>.json, DIR/<stem>.sd.npy and "
+        "DIR/<stem>.png.")
+    g.add_argument("--partial", action="store_true", help="SCAN shows part of the fruit: complete it")
+    g.add_argument("--noise", type=float, default=None, metavar="MM",
+                   help="the points' noise, SD in mm (default: estimated from the fit)")
+    g.add_argument("--seed", type=int, default=0, help="random seed (the subsets of points used)")
     _add_scale(p)
     _add_registration_options(p)
     p.set_defaults(run=_run_fit)
@@ -603,6 +622,8 @@ def _run_fit(args) -> int:
     from .units import read_scan
 
     model = _load_model(args.model, "fit")
+    if args.partial:
+        return _run_fit_partial(model, args)
     scan = read_scan(args.scan, scale=args.scale)
     fit = fit_scan(model, scan.mesh, modes=args.modes, config=_registration_config(args))
     out = args.out or Path(f"{args.scan.stem}_fit.ply")
@@ -620,6 +641,31 @@ def _run_fit(args) -> int:
             "residual_mean_mm": fit.residual_mean, "residual_max_mm": fit.residual_max,
             "surface_mean_mm": fit.surface_mean, "surface_max_mm": fit.surface_max,
         }, indent=1))
+    return 0
+
+
+def _run_fit_partial(model, args) -> int:
+    from .io import read_points
+    from .partial import fit_partial, write_partial_fit
+
+    cloud = read_points(args.scan)
+    points = cloud.points * args.scale
+    try:
+        fit = fit_partial(model, points, normals=cloud.normals, modes=args.modes,
+                          noise="auto" if args.noise is None else args.noise, random_state=args.seed)
+    except HortishapeError as exc:
+        raise HortishapeError(f"{args.scan}: {exc}") from None
+    stem = args.scan.stem
+    out = args.out or Path(f"{stem}_partial")
+    files = write_partial_fit(fit, out, stem, points=points, source=str(args.scan))
+    print(f"{args.scan}: {fit.n_points:,} points, {fit.n_kept:,} of those fitted kept; "
+          f"{fit.observed_fraction:.0%} of the surface seen")
+    print(f"volume {fit.volume_ml:.1f} +/- {fit.volume_sd_ml:.1f} mL (1 SD); residual {fit.residual_mm:.2f} mm, "
+          f"noise {fit.noise_mm:.2f} mm")
+    print(f"posterior SD of the surface: mean {fit.sd.mean():.2f} mm, max {fit.sd.max():.2f} mm")
+    sds = " ".join(f"{b:+.2f}" for b in fit.coefficients[: min(10, len(fit.coefficients))])
+    print(f"coefficients (SD, first {min(10, len(fit.coefficients))} modes): {sds}")
+    print(f"wrote {files['mesh']}, {files['json'].name}, {files['sd'].name}, {files['picture'].name}")
     return 0
 
 

@@ -60,7 +60,7 @@ from typing import Sequence
 
 import numpy as np
 
-from . import __version__
+from ._version import __version__
 from ._batch import raise_failed, run_jobs
 from .errors import HortishapeError, MeshError, VolumeError
 from ._files import Progress, atomic_path

@@ -443,7 +443,7 @@ class ModelData:
 
 
 def _version() -> str:
-    from . import __version__
+    from ._version import __version__
 
     return __version__
 
