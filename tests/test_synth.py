@@ -265,3 +265,34 @@ def test_unknown_family_is_refused(tmp_path):
         synth.make_instance("apple", family="lumpy")
     with pytest.raises(HortishapeError, match="no family 'five-lobed'"):
         synth.write_population("apple", 2, tmp_path, family="five-lobed")
+
+
+def test_a_depth_view_sees_the_near_side_only_and_the_views_are_written_apart(tmp_path):
+    import json
+
+    from hortishape.io import read_points, read_mesh
+    from hortishape.surface import closest_points
+
+    inst = synth.make_instance("apple", random_state=4, n_vertices=20000, pose="random")
+    direction = np.array([0.2, -1.0, 0.4])
+    view = synth.depth_view(inst.mesh, direction, noise=0.0, random_state=0)
+    # every point lies on the surface and faces the camera (the silhouette's grazing faces aside)
+    assert closest_points(inst.mesh, view.points).distances.max() < 1e-4  # Embree works in float32
+    assert np.mean(view.normals @ view.direction < 0) > 0.99
+    # one point per square millimetre of the outline: about the fruit's cross-section
+    width = np.ptp(inst.mesh.vertices @ np.linalg.svd(np.eye(3) - np.outer(view.direction, view.direction))[0][:, :2],
+                   axis=0)
+    assert 0.6 * width.prod() < len(view.points) < 0.85 * width.prod()
+    noisy = synth.depth_view(inst.mesh, direction, noise=0.2, random_state=0)
+    depth = closest_points(inst.mesh, noisy.points).distances
+    assert 0.1 < np.sqrt(np.mean(depth**2)) < 0.25
+    # write_population(views=2): a views folder beside the scans, which find_meshes does not take for scans
+    synth.write_population("apple", 2, tmp_path, random_state=5, n_vertices=20000, n_jobs=1, views=2)
+    from hortishape.pipeline import find_meshes
+
+    assert [p.name for p in find_meshes(tmp_path)] == ["apple_000.ply", "apple_001.ply"]
+    listing = json.loads((tmp_path / "views" / "apple_001.views.json").read_text())
+    assert listing["files"] == ["apple_001.view0.ply", "apple_001.view1.ply"] and listing["noise_mm"] == 0.2
+    cloud = read_points(tmp_path / "views" / "apple_001.view1.ply")
+    scan = read_mesh(tmp_path / "apple_001.ply")
+    assert cloud.normals is not None and closest_points(scan, cloud.points).distances.mean() < 0.3

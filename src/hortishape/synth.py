@@ -64,6 +64,9 @@ __all__ = [
     "write_instance",
     "read_truth",
     "write_population",
+    "DepthView",
+    "depth_view",
+    "write_views",
 ]
 
 
@@ -1050,6 +1053,126 @@ def write_instance(instance: SyntheticInstance, out_dir, *, random_seed: int | N
     return mesh_path
 
 
+@dataclass(frozen=True, eq=False)
+class DepthView:
+    """What a depth camera sees of a surface: the visible points, their normals, the viewing direction.
+
+    Attributes
+    ----------
+    points : (k, 3) float64 ndarray
+        First hits of a square grid of parallel rays, with depth noise, mm.
+    normals : (k, 3) float64 ndarray
+        Outward normals of the surface at the hits (without noise).
+    direction : (3,) float64 ndarray
+        Where the camera looks (from the camera towards the fruit), unit length.
+    """
+
+    points: np.ndarray
+    normals: np.ndarray
+    direction: np.ndarray
+
+
+def depth_view(mesh: Mesh, direction, *, pitch: float = 1.0, noise: float = 0.2,
+               random_state: RandomState = None) -> DepthView:
+    """The points a depth camera looking along ``direction`` sees of a closed surface.
+
+    An orthographic camera: a square grid of parallel rays ``pitch`` mm
+    apart covers the surface's outline; each ray's first hit is a point
+    (the surface behind it is hidden, as a camera sees it), moved along the
+    ray by normal noise of standard deviation ``noise`` mm (a depth
+    sensor's error is in depth).
+
+    Parameters
+    ----------
+    mesh : Mesh
+        A closed surface, mm.
+    direction : (3,) array_like of float
+        Viewing direction, from the camera towards the surface.
+    pitch : float, default: 1.0
+        Spacing of the rays, mm.
+    noise : float, default: 0.2
+        Depth noise, standard deviation in mm.
+    random_state : int, Generator, SeedSequence or None
+        For the noise.
+
+    Returns
+    -------
+    DepthView
+
+    Examples
+    --------
+    >>> import trimesh
+    >>> s = trimesh.creation.icosphere(subdivisions=4, radius=40.0)
+    >>> view = depth_view(Mesh(s.vertices, s.faces), [0, 0, -1], noise=0.0)   # seen from above
+    >>> bool(view.points[:, 2].min() > -1e-6)                  # the top half only
+    True
+    >>> bool(abs(len(view.points) - np.pi * 40.0**2) < 50)    # one point per mm^2 of the outline
+    True
+    """
+    from .registration.correspondences import RayScene
+
+    d = np.asarray(direction, dtype=np.float64)
+    if d.shape != (3,) or not np.isfinite(d).all() or not np.linalg.norm(d) > 0:
+        raise HortishapeError(f"direction must be a non-zero 3-vector, got {direction!r}")
+    if not pitch > 0 or not noise >= 0:
+        raise HortishapeError(f"pitch must be positive and noise non-negative, got {pitch!r} and {noise!r}")
+    d = d / np.linalg.norm(d)
+    u = np.cross(d, [1.0, 0.0, 0.0] if abs(d[0]) < 0.9 else [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    w = np.cross(d, u)
+    v = mesh.vertices
+    centre = v.mean(axis=0)
+    a, b, depth = (v - centre) @ u, (v - centre) @ w, (v - centre) @ d
+    ga = np.arange(a.min() - pitch, a.max() + pitch, pitch)
+    gb = np.arange(b.min() - pitch, b.max() + pitch, pitch)
+    aa, bb = (g.ravel() for g in np.meshgrid(ga, gb, indexing="ij"))
+    origins = centre + (depth.min() - 10.0) * d + aa[:, None] * u + bb[:, None] * w
+    face, t, _ = RayScene(v, mesh.faces).first_hit(origins, np.broadcast_to(d, origins.shape))
+    hit = face >= 0
+    rng = as_generator(random_state)
+    points = origins[hit] + (t[hit] + rng.normal(0.0, noise, hit.sum()) if noise > 0 else t[hit])[:, None] * d
+    from .surface import face_normals
+
+    normals = face_normals(v, mesh.faces)[face[hit]]
+    return DepthView(points, normals, d)
+
+
+def write_views(mesh_path, n_views: int, *, pitch: float = 1.0, noise: float = 0.2,
+                random_state: RandomState = None) -> list[Path]:
+    """Write ``n_views`` depth views of a synthetic scan: ``views/<name>.view<j>.ply`` beside it.
+
+    Each view looks at the fruit from a random direction (uniform on the
+    sphere); the points carry their normals (``nx``, ``ny``, ``nz``), and
+    ``views/<name>.views.json`` lists the directions, the pitch and the
+    noise. (In a folder of their own, as the volumes are, so that ``build``
+    on the scans' folder does not take them for scans.)
+
+    Returns
+    -------
+    list of pathlib.Path
+        The point-cloud files.
+    """
+    from ._files import atomic_text
+    from .io import read_mesh, write_points
+
+    mesh_path = Path(mesh_path)
+    mesh = read_mesh(mesh_path)
+    rng = as_generator(random_state)
+    stem = mesh_path.name[: -len(mesh_path.suffix)]
+    folder = mesh_path.parent / "views"
+    folder.mkdir(exist_ok=True)
+    paths, directions = [], []
+    for j in range(n_views):
+        direction = rng.normal(size=3)
+        view = depth_view(mesh, direction, pitch=pitch, noise=noise, random_state=rng)
+        paths.append(write_points(folder / f"{stem}.view{j}.ply", view.points, normals=view.normals))
+        directions.append(view.direction.tolist())
+    atomic_text(folder / f"{stem}.views.json", json.dumps(
+        {"scan": mesh_path.name, "pitch_mm": pitch, "noise_mm": noise, "directions": directions,
+         "files": [p.name for p in paths]}, indent=1), HortishapeError)
+    return paths
+
+
 def read_truth(mesh_path) -> dict:
     """Read the ground truth written beside a synthetic mesh.
 
@@ -1114,6 +1237,7 @@ def write_population(
     noise: float = 0.0,
     n_vertices: int | None = None,
     volumes: bool = False,
+    views: int = 0,
     n_jobs: int | None = None,
     progress: Callable[[Iterable], Iterable] | None = None,
     family: str = "standard",
@@ -1132,6 +1256,9 @@ def write_population(
     pose, noise, n_vertices, family : see :func:`make_instance`
     volumes : bool, default: False
         Also write a CT-like volume per instance under ``out_dir/volumes``.
+    views : int, default: 0
+        Also write this many depth views of each instance from random
+        directions (:func:`write_views`: ``out_dir/views/<name>.view<j>.ply``).
     n_jobs : int, optional
     progress : callable, optional
         Wraps the iterator of finished instances (e.g. ``tqdm``).
@@ -1151,4 +1278,11 @@ def write_population(
     jobs = [(product, s, i, str(out_dir), pose, noise, n_vertices, volumes, random_state, family)
             for i, s in enumerate(seeds)]
     results = run_jobs(_make_and_write, jobs, n_jobs=n_jobs, progress=progress)
+    if views:
+        # the views' seeds apart from the instances' (same random_state, another stream)
+        root = np.random.SeedSequence([int(random_state), 1]) if isinstance(random_state, (int, np.integer)) \
+            else random_state
+        view_seeds = spawn_seeds(root, n)
+        for r, seed in zip(results, view_seeds):
+            write_views(Path(out_dir) / f"{r[0]}.ply", views, random_state=seed)
     return [{"name": r[0], "n_vertices": r[1], "dimensions_mm": r[2]} for r in results]
