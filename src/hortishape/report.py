@@ -52,6 +52,7 @@ __all__ = [
     "plot_specificity",
     "render_error_map",
     "render_modes",
+    "render_partial_fit",
     "render_uncertain",
     "render_samples",
     "write_evaluation",
@@ -301,6 +302,60 @@ def render_uncertain(
     """
     meshes = [mean, *(mean.with_vertices(v) for v in shapes)]
     return _front_and_top(meshes, ["mean", *titles], path, backend)
+
+
+def render_partial_fit(vertices, faces, sd, path: str | os.PathLike, *, points=None, max_points: int = 2000,
+                       backend: str = "auto") -> Path:
+    """Picture of a completed surface coloured by its posterior SD, with the fitted points over it.
+
+    Three views (front, side, top) of the surface in the points' coordinates;
+    the points (at most ``max_points`` of them, evenly chosen) are drawn as
+    small grey markers, so what was seen and what the model filled in can be
+    told apart at a glance.
+
+    Parameters
+    ----------
+    vertices : (n, 3) array_like of float
+    faces : (m, 3) array_like of int
+    sd : (n,) array_like of float
+        Per-vertex standard deviation, mm.
+    path : str or os.PathLike
+        Output ``.png``.
+    points : (k, 3) array_like of float, optional
+        The observed points.
+
+    Returns
+    -------
+    pathlib.Path
+
+    Examples
+    --------
+    >>> import tempfile, trimesh
+    >>> s = trimesh.creation.icosphere(subdivisions=2, radius=30.0)
+    >>> top = s.vertices[s.vertices[:, 2] > 0]
+    >>> render_partial_fit(s.vertices, s.faces, 1.0 - s.vertices[:, 2] / 30.0, tempfile.mkdtemp() + "/p.png",
+    ...                    points=top, backend="matplotlib").name
+    'p.png'
+    """
+    from .mesh import Mesh
+    from .render import render_grid
+
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    values = np.asarray(sd, dtype=np.float64)
+    if points is not None and len(points):
+        p = np.asarray(points, dtype=np.float64)
+        p = p[np.linspace(0, len(p) - 1, min(len(p), max_points)).astype(np.int64)]
+        size = 0.006 * float(np.ptp(v, axis=0).max())
+        tetra = size * np.array([[1.0, 1.0, 1.0], [1.0, -1.0, -1.0], [-1.0, 1.0, -1.0], [-1.0, -1.0, 1.0]])
+        marks = (p[:, None, :] + tetra[None]).reshape(-1, 3)
+        tf = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+        mf = (tf[None] + 4 * np.arange(len(p))[:, None, None]).reshape(-1, 3) + len(v)
+        v, f = np.concatenate([v, marks]), np.concatenate([f, mf])
+        values = np.concatenate([values, np.full(len(marks), np.nan)])  # NaN is drawn grey
+    mesh = Mesh(v, f)
+    return render_grid([mesh], path, views=("front", "side", "top"), scalars=[values], cmap="viridis",
+                       scalar_bar_title="posterior SD (mm); grey: the points seen", backend=backend)
 
 
 # Turns that make the "front" view of the turned copy show another view
@@ -691,7 +746,7 @@ def write_report(ev: "Evaluation", path: str | os.PathLike) -> Path:
     import datetime
     import html
 
-    from . import __version__
+    from ._version import __version__
     from ._files import atomic_path
 
     target = Path(path)
