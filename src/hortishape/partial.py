@@ -221,15 +221,6 @@ def _volume_gradient(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return out / 6.0
 
 
-def _kabsch(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rotation and translation taking ``src`` onto ``dst`` (least squares)."""
-    cs, cd = src.mean(axis=0), dst.mean(axis=0)
-    u, _, vt = np.linalg.svd((src - cs).T @ (dst - cd))
-    d = np.sign(np.linalg.det(vt.T @ u.T)) or 1.0
-    r = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
-    return r, cd - r @ cs
-
-
 def _trim(distances: np.ndarray) -> np.ndarray:
     """The points to keep: not farther than TRIM_MAD robust SDs of the distances (and never within the floor)."""
     med = float(np.median(distances))
@@ -761,7 +752,7 @@ def _fit(prep: PartialFitter, y_all: np.ndarray, n_all, noise, rng) -> PartialFi
         parts.append((p_m, f, _posterior(fitter, model, y, nrm, w, sigma, *f, calibrate=calibrate,
                                          per_vertex=not parts)))
     total = sum(p for p, _, _ in parts)
-    best_p, (rotation, translation, c), best = parts[0]
+    _, (rotation, translation, c), best = parts[0]
     x, sd, cov, keep = best.shape, best.sd, best.cov, best.keep
     volume = sum(p * post.volume for p, _, post in parts) / total
     volume_sd = float(np.sqrt(sum(p * (post.volume_sd**2 + (post.volume - volume) ** 2)
