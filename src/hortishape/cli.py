@@ -606,7 +606,7 @@ def _add_fit(sub) -> None:
         "Writes DIR/<stem>.ply (with the vertex property sd_mm), DIR/<stem>.json, DIR/<stem>.sd.npy and "
         "DIR/<stem>.png.")
     g.add_argument("--partial", action="store_true", help="SCAN shows part of the fruit: complete it")
-    g.add_argument("--noise", type=float, default=None, metavar="MM",
+    g.add_argument("--noise", type=_positive_float, default=None, metavar="MM",
                    help="the points' noise, SD in mm (default: estimated from the fit)")
     g.add_argument("--seed", type=int, default=0, help="random seed (the subsets of points used)")
     _add_scale(p)
@@ -658,11 +658,12 @@ def _run_fit_partial(model, args) -> int:
     stem = args.scan.stem
     out = args.out or Path(f"{stem}_partial")
     files = write_partial_fit(fit, out, stem, points=points, source=str(args.scan))
-    print(f"{args.scan}: {fit.n_points:,} points, {fit.n_kept:,} of those fitted kept; "
+    planar = f", {fit.n_planar:,} on a large plane (a table?) left out" if fit.n_planar else ""
+    print(f"{args.scan}: {fit.n_points:,} points{planar}, {fit.n_kept:,} of those fitted kept; "
           f"{fit.observed_fraction:.0%} of the surface seen")
     print(f"volume {fit.volume_ml:.1f} +/- {fit.volume_sd_ml:.1f} mL (1 SD); residual {fit.residual_mm:.2f} mm, "
           f"noise {fit.noise_mm:.2f} mm")
-    print(f"posterior SD of the surface: mean {fit.sd.mean():.2f} mm, max {fit.sd.max():.2f} mm")
+    print(f"SD of the surface along its normals: mean {fit.sd.mean():.2f} mm, max {fit.sd.max():.2f} mm")
     sds = " ".join(f"{b:+.2f}" for b in fit.coefficients[: min(10, len(fit.coefficients))])
     print(f"coefficients (SD, first {min(10, len(fit.coefficients))} modes): {sds}")
     print(f"wrote {files['mesh']}, {files['json'].name}, {files['sd'].name}, {files['picture'].name}")
