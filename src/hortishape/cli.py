@@ -603,8 +603,8 @@ def _add_fit(sub) -> None:
         "--partial fits SCAN as what was seen of one side of the fruit (a depth camera's points, an open mesh; "
         "in any pose, stray points such as a table are left out) and completes it: the whole surface with the "
         "model's vertex order in the scan's coordinates, the posterior SD of every vertex and of the volume. "
-        "Writes DIR/<stem>.ply (with the vertex property sd_mm), DIR/<stem>.json, DIR/<stem>.sd.npy and "
-        "DIR/<stem>.png.")
+        "Writes, in the --out folder, <stem>.ply (with the vertex property sd_mm), <stem>.json (volume_ml, "
+        "volume_sd_ml, pose, coefficients, residual, share seen), <stem>.sd.npy and <stem>.png.")
     g.add_argument("--partial", action="store_true", help="SCAN shows part of the fruit: complete it")
     g.add_argument("--noise", type=_positive_float, default=None, metavar="MM",
                    help="the points' noise, SD in mm (default: estimated from the fit)")
