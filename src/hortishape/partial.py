@@ -69,8 +69,10 @@ import numpy.typing as npt
 from scipy.spatial import cKDTree
 
 from ._rng import RandomState, as_generator
+from .align import fruit_axis, rotation_about, rotation_angle
 from .errors import HortishapeError
-from .surface import signed_volume, vertex_areas, vertex_normals
+from .mesh import Mesh
+from .surface import closest_points, signed_volume, vertex_areas, vertex_normals
 
 __all__ = ["PartialFit", "PartialFitter", "fit_partial", "write_partial_fit"]
 
@@ -480,8 +482,6 @@ class _Fitter:
             w = step[k:k + 3]
             angle = np.linalg.norm(w)
             if angle > 0:
-                from .align import rotation_about
-
                 turn = rotation_about(w / angle, angle)
             else:
                 turn = np.eye(3)
@@ -609,8 +609,6 @@ class PartialFitter:
     """
 
     def __init__(self, model, *, modes: int | None = None, calibrate: bool = True) -> None:
-        from .align import fruit_axis
-
         model._check_fitted()
         if model.faces_ is None:
             raise HortishapeError("the model has no triangles (a point-set model): a partial fit needs its surface")
@@ -690,7 +688,7 @@ def _fit(prep: PartialFitter, y_all: np.ndarray, n_all, noise, rng) -> PartialFi
     found.sort(key=lambda t: t[0])
     screened = []
     for score, rotation, translation in found:  # distinct rotations only
-        if all(_angle(rotation, r) > 20.0 for _, r, _ in screened):
+        if all(rotation_angle(rotation @ r.T) > 20.0 for _, r, _ in screened):
             screened.append((score, rotation, translation))
         if len(screened) == SCREENED:
             break
@@ -706,8 +704,6 @@ def _fit(prep: PartialFitter, y_all: np.ndarray, n_all, noise, rng) -> PartialFi
         return fitter.objective(ys, ns, rot, tr, c, start_noise, ws, normals=mean_normals)[0], rot, tr, c
 
     short = sorted((screen(rot, tr) for _, rot, tr in screened), key=lambda t: t[0])
-    from .align import rotation_about
-
     axis = prep.axis
     _, rot_b, tr_b, _ = short[0]
     for turn in np.arange(1, TWISTS) * (2.0 * np.pi / TWISTS):
@@ -716,7 +712,7 @@ def _fit(prep: PartialFitter, y_all: np.ndarray, n_all, noise, rng) -> PartialFi
     short.sort(key=lambda t: t[0])
     finalists = []
     for candidate in short:
-        if all(_angle(candidate[1], other[1]) > 20.0 for other in finalists):
+        if all(rotation_angle(candidate[1] @ other[1].T) > 20.0 for other in finalists):
             finalists.append(candidate)
         if len(finalists) == FINALISTS:
             break
@@ -737,7 +733,7 @@ def _fit(prep: PartialFitter, y_all: np.ndarray, n_all, noise, rng) -> PartialFi
     fits = [fitter.fit(y, nrm, *f, sigma, FIT_ITERATIONS // 2, w) for f in fits]
     scored = []
     for o, f in sorted(((fitter.objective(y, nrm, *f, sigma, w)[0], f) for f in fits), key=lambda t: t[0]):
-        if all(_angle(f[0], g[0]) > SAME_POSE for _, g in scored):  # two finalists that met count once
+        if all(rotation_angle(f[0] @ g[0].T) > SAME_POSE for _, g in scored):  # two finalists that met count once
             scored.append((o, f))
 
     # the posterior is a mixture over the poses that explain the points alike: each fit's Laplace
@@ -779,9 +775,6 @@ def _fit(prep: PartialFitter, y_all: np.ndarray, n_all, noise, rng) -> PartialFi
     # may lie that far off as a whole.
     sd = np.sqrt(sd**2 + sigma**2)
     volume_sd = float(np.sqrt(volume_sd**2 + (sigma * areas[~seen].sum()) ** 2))
-    from .surface import closest_points
-    from .mesh import Mesh
-
     residual = float(closest_points(Mesh(completed, model.faces_), kept_points).distances.mean())
     best = rotation
     # the model's own coefficients (in its SD) and their covariance
@@ -792,7 +785,7 @@ def _fit(prep: PartialFitter, y_all: np.ndarray, n_all, noise, rng) -> PartialFi
         vertices=completed, faces=model.faces_, sd=sd, coefficients=coefficients, covariance=covariance, pose=pose,
         volume_ml=float(volume) / 1000.0, volume_sd_ml=float(volume_sd) / 1000.0, residual_mm=residual, noise_mm=sigma,
         observed_fraction=observed, n_points=len(y_all), n_kept=int(keep.sum()), correlation_mm=length,
-        poses=tuple((float(p_m), _angle(best, f[0])) for (_, f), p_m in zip(scored, share)),
+        poses=tuple((float(p_m), rotation_angle(best @ f[0].T)) for (_, f), p_m in zip(scored, share)),
         calibrated=calibration is not None,
     )
 
@@ -872,11 +865,6 @@ def _correlation_length(points: np.ndarray, residuals: np.ndarray, rng) -> float
     corr = np.divide(sums, counts, out=np.ones_like(sums), where=counts >= 10)
     below = np.nonzero(corr < np.exp(-1.0))[0]
     return float(np.clip(edges[below[0]] if below.size else hi, lo, hi))
-
-
-def _angle(a: np.ndarray, b: np.ndarray) -> float:
-    cos = (np.trace(a @ b.T) - 1.0) / 2.0
-    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
 
 
 def write_partial_fit(fit: PartialFit, out_dir, stem: str, *, points: npt.ArrayLike | None = None,
