@@ -203,11 +203,23 @@ def read_mesh_data(path: PathLike) -> MeshData:
     [255, 0, 0]
     """
     p = Path(path)
+    raw = _read_raw(p, _checked_format(p))
+    vertices, faces = check_mesh(raw.vertices, raw.faces, name=str(p))
+    return MeshData(Mesh(vertices, faces), raw.colors, raw.scalars or {})
+
+
+def _checked_format(p: Path) -> _MeshFormat:
+    """The format of an existing, non-empty mesh file (MeshError naming the file otherwise)."""
     check_exists(p, MeshError)
     fmt = _mesh_format(p)
     check_not_empty(p, MeshError)
+    return fmt
+
+
+def _read_raw(p: Path, fmt: _MeshFormat) -> _RawMesh:
+    """The file's content as its format's reader gives it; every failure a MeshError naming the file."""
     try:
-        raw = fmt.read(p)
+        return fmt.read(p)
     except MeshError:
         raise
     except (_ParseError, _MissingDependencyError) as exc:
@@ -216,8 +228,6 @@ def read_mesh_data(path: PathLike) -> MeshData:
         raise MeshError(f"{p}: cannot read the file ({exc.strerror or exc})") from None
     except (ValueError, IndexError, TypeError, OverflowError) as exc:
         raise MeshError(f"{p}: not a valid {fmt.name} file ({exc})") from exc
-    vertices, faces = check_mesh(raw.vertices, raw.faces, name=str(p))
-    return MeshData(Mesh(vertices, faces), raw.colors, raw.scalars or {})
 
 
 def read_mesh(path: PathLike) -> Mesh:

@@ -8,11 +8,10 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from .._files import PathLike, atomic_path, check_exists, check_not_empty
+from .._files import PathLike, atomic_path
 from ..errors import MeshError
-from ._common import _ParseError
-from .mesh_files import _mesh_format, read_mesh_data
-from .ply import _read_ply, _write_ply
+from .mesh_files import _checked_format, _read_raw, read_mesh_data
+from .ply import _write_ply
 
 _NORMAL_NAMES = ("nx", "ny", "nz")
 
@@ -65,20 +64,11 @@ def read_points(path: PathLike) -> PointCloud:
     ((2, 3), [0.0, 0.0, 1.0], (0, 3))
     """
     p = Path(path)
-    check_exists(p, MeshError)
-    fmt = _mesh_format(p)
-    check_not_empty(p, MeshError)
+    fmt = _checked_format(p)
     if fmt.name != "PLY":
         data = read_mesh_data(p)
         return PointCloud(data.mesh.vertices, None, data.mesh.faces)
-    try:
-        raw = _read_ply(p)
-    except _ParseError as exc:
-        raise MeshError(f"{p}: {exc}") from None
-    except OSError as exc:
-        raise MeshError(f"{p}: cannot read the file ({exc.strerror or exc})") from None
-    except (ValueError, IndexError, TypeError, OverflowError) as exc:
-        raise MeshError(f"{p}: not a valid PLY file ({exc})") from exc
+    raw = _read_raw(p, fmt)
     points = np.asarray(raw.vertices, dtype=np.float64)
     if points.ndim != 2 or len(points) == 0:
         raise MeshError(f"{p}: the file holds no points")
