@@ -724,8 +724,9 @@ def _fit(prep: PartialFitter, y_all: np.ndarray, n_all, noise, rng) -> PartialFi
     nrm = None if n_all is None else n_all[f_idx]
     w = _weights(y, START_CORRELATION_MM)
     fits = [fitter.fit(y, nrm, rot, tr, c, start_noise, FIT_ITERATIONS, w) for _, rot, tr, c in finalists]
-    fits.sort(key=lambda f: fitter.objective(y, nrm, *f, start_noise, w)[0])
-    _, keep, j, r = fitter.objective(y, nrm, *fits[0], start_noise, w)
+    judged = sorted(((fitter.objective(y, nrm, *f, start_noise, w), f) for f in fits), key=lambda t: t[0][0])
+    fits = [f for _, f in judged]
+    _, keep, j, r = judged[0][0]
     length = _correlation_length(y[keep], r[keep], rng)
     w = _weights(y, length)
     sigma = float(noise) if noise != "auto" else max(float(np.sqrt(np.average(r[keep] ** 2, weights=w[keep]))),
