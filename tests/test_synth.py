@@ -162,6 +162,26 @@ def test_ct_volume_is_hollow_for_pepper():
     assert corner < 300
 
 
+def test_mri_volume_has_a_peel_over_a_dark_rind_and_an_open_core(tmp_path):
+    inst = synth.make_instance("apple", random_state=6, pose="canonical", n_vertices=40000, volume=True)
+    vol = inst.mri_volume
+    assert vol.data.dtype == np.uint8 and vol.spacing[2] == pytest.approx(2 * vol.spacing[0])
+    # along +x from the centre (the body frame is the scanner frame here): flesh, dark rind, peel, air
+    top = inst.mesh.vertices[np.argmax(inst.mesh.vertices[:, 0])]
+    depth = np.linspace(12.0, -3.0, 61)  # mm inside the surface along -x
+    points = top[None, :] - depth[:, None] * np.array([1.0, 0.0, 0.0])
+    profile = vol.data[tuple(np.round(vol.world_to_index(points)).astype(int).T)].astype(float)
+    peel = profile[(depth > 0.2) & (depth < 0.8)].mean()
+    rind = profile[(depth > 2.3) & (depth < 3.2)].mean()
+    air = profile[depth < -1.5].mean()
+    assert air < 8 and rind < 0.6 * peel and peel > 20
+    # the core's channel reaches the blossom end: dark on the axis just inside the bottom
+    bottom = inst.landmarks["bottom"] + np.array([0.0, 0.0, 1.0])
+    assert vol.data[tuple(np.round(vol.world_to_index(bottom[None])[0]).astype(int))] < 15
+    synth.write_instance(inst, tmp_path)
+    assert (tmp_path / "volumes" / "apple.mha").is_file() and (tmp_path / synth.MRI_FOLDER / "apple.mha").is_file()
+
+
 def test_files_round_trip(tmp_path):
     from hortishape.io import read_mesh
 

@@ -610,6 +610,9 @@ class SyntheticInstance:
         Edge of the voxel grid the surface was extracted from, mm.
     volume : Volume or None
         A CT-like intensity volume (``make_instance(..., volume=True)``).
+    mri_volume : Volume or None
+        An MRI-like intensity volume of the same instance (also with
+        ``volume=True``): see :func:`make_instance`.
     """
 
     name: str
@@ -625,6 +628,7 @@ class SyntheticInstance:
     deformation: Deformation
     voxel_size: float
     volume: object = None
+    mri_volume: object = None
 
 
 def _surface_point_on_ray(f, origin: np.ndarray, direction: np.ndarray, length: float = 80.0) -> np.ndarray:
@@ -748,6 +752,10 @@ def _band_volume(f, origin: np.ndarray, shape: tuple[int, int, int], h: float, f
     return grid
 
 
+#: Folder of the MRI-like volumes beside ``volumes/`` (their own, so that
+#: ``build`` on ``volumes/`` takes each instance once).
+MRI_FOLDER = "volumes-mri"
+
 #: The fewest vertices :func:`make_instance` makes a scan of.
 MIN_VERTICES = 1000
 
@@ -820,7 +828,12 @@ def make_instance(
         would come apart at that voxel size, the grid is made finer, so a
         small count can come out larger (up to about 6 times at 1,000).
     volume : bool, default: False
-        Also return a CT-like intensity volume (``instance.volume``).
+        Also return a CT-like intensity volume (``instance.volume``: flesh
+        brighter than air, hollow peppers, apples with a darker core) and an
+        MRI-like one (``instance.mri_volume``: a thin bright peel over a dark
+        rind, flesh in segments with dark gaps, a core open to the blossom
+        end, slices twice as thick as the pixels, 8-bit). Their outer
+        surface is the instance's surface.
     name : str, optional
         Default ``"<product>"``.
     family : str, default: "standard"
@@ -903,6 +916,8 @@ def make_instance(
     dims = np.ptp(deform.to_body(canonical[body_v]), axis=0)
 
     vol = _ct_volume(grid, lo, h, canon, deform, product, rng) if volume else None
+    # after the CT volume, so that the CT volume and everything before are as without it
+    mri = _mri_volume(grid, lo, h, deform, lm_canon["bottom"], rng) if volume else None
     return SyntheticInstance(
         name=name or product,
         product=product,
@@ -917,6 +932,7 @@ def make_instance(
         deformation=deform,
         voxel_size=h,
         volume=vol,
+        mri_volume=mri,
     )
 
 
@@ -954,6 +970,79 @@ def _ct_volume(grid, origin, h, canon, deform, product, rng):
     values = flesh * density + rng.normal(0.0, 25.0, size=grid.shape)
     values = np.clip(values, -1000, 3000).astype(np.int16)
     return Volume(values, spacing=np.full(3, h), origin=origin, direction=np.eye(3))
+
+
+def _smooth_step(x: np.ndarray, sigma: float) -> np.ndarray:
+    """1 where ``x`` is well below 0, 0 well above: a partial-volume edge of width ``sigma``."""
+    from scipy.special import erf
+
+    return 0.5 * (1.0 - erf(x / (sigma * math.sqrt(2.0))))
+
+
+def _mri_volume(grid, origin, h, deform, bottom, rng):
+    """An MRI-like volume: a bright peel over a dark rind, bright flesh in segments, an open core.
+
+    What makes real MRI of fruit hard for an iso-surface, on the instance's
+    shape (the outer surface is the instance's surface):
+
+    - a thin bright **peel** (1-2 mm) that is darker than the flesh, over a
+      dark **rind** (2.5-4.5 mm), so the strongest edge is the flesh's, inside;
+    - **flesh in segments** (8-12 wedges about the fruit's axis) with dark
+      gaps between them;
+    - a dark **central cavity** that opens to the outside through a channel
+      (1.6-3 mm wide) to the blossom end, through rind and peel;
+    - 8-bit intensities with Rician noise (background about 2), and slices
+      twice as thick as the in-plane pixels, averaged over their thickness.
+
+    Intensities are drawn per instance: peel 30-50, rind 6-14, flesh 65-95.
+    """
+    from .io import Volume
+
+    g = np.gradient(grid, h)
+    gn = np.sqrt(g[0] ** 2 + g[1] ** 2 + g[2] ** 2)
+    dist = grid / np.maximum(gn, 1e-6)  # signed distance (mm), negative inside
+    del g, gn
+    sigma = 0.7 * h
+    peel_mm, rind_mm = rng.uniform(1.0, 2.0), rng.uniform(2.5, 4.5)
+    peel, rind, flesh = rng.uniform(30, 50), rng.uniform(6, 14), rng.uniform(65, 95)
+    n_segments = int(rng.integers(8, 13))
+    phase = rng.uniform(0.0, 2.0 * math.pi)
+    gap_mm = rng.uniform(0.3, 0.6)  # half-width of the dark gaps between segments
+    cavity_mm = rng.uniform(3.0, 5.0)
+    channel_mm = rng.uniform(0.8, 1.5)  # radius
+    cavity_value = 4.0
+
+    values = np.zeros(grid.shape)
+    near = dist < 2.0
+    idx = np.argwhere(near)
+    d = dist[near]
+    c = deform.inverse(origin + idx * h)  # canonical: the fruit's axis is z
+    layered = (peel * _smooth_step(d, sigma) + (rind - peel) * _smooth_step(d + peel_mm, sigma))
+    # segments: wedges about the axis, dark within gap_mm of the planes between them
+    r_axis = np.hypot(c[:, 0], c[:, 1])
+    theta = np.arctan2(c[:, 1], c[:, 0]) - phase
+    period = 2.0 * math.pi / n_segments
+    across = r_axis * np.abs((theta + 0.5 * period) % period - 0.5 * period)  # mm to the nearest gap plane
+    segmented = rind + (flesh - rind) * (1.0 - _smooth_step(across - gap_mm, sigma))
+    layered += (segmented - rind) * _smooth_step(d + peel_mm + rind_mm, sigma)
+    # the core and its channel towards the blossom end, open through rind and peel
+    axis = np.asarray(bottom, dtype=float) / max(float(np.linalg.norm(bottom)), 1e-9)
+    t = c @ axis
+    off_axis = np.linalg.norm(c - t[:, None] * axis, axis=1)
+    core = np.sqrt(off_axis**2 + (t / 2.5) ** 2) - cavity_mm
+    channel = np.where(t > 0, off_axis - channel_mm, np.inf)
+    dark = np.maximum(_smooth_step(core, sigma), _smooth_step(channel, sigma))
+    values[near] = layered * (1.0 - dark) + cavity_value * dark * (d < 0)
+    del idx, d, c, layered, segmented, near
+    # slices of two pixels' thickness along the last axis, averaged
+    nz = values.shape[2] // 2 * 2
+    values = 0.5 * (values[:, :, 0:nz:2] + values[:, :, 1:nz:2])
+    noise = 2.0
+    values = np.hypot(values + rng.normal(0.0, noise, values.shape), rng.normal(0.0, noise, values.shape))
+    data = np.clip(np.rint(values), 0, 255).astype(np.uint8)
+    spacing = np.array([h, h, 2.0 * h])
+    return Volume(data, spacing=spacing, origin=np.asarray(origin) + np.array([0.0, 0.0, 0.5 * h]),
+                  direction=np.eye(3))
 
 
 # --------------------------------------------------------------------------
@@ -1009,8 +1098,9 @@ def write_instance(instance: SyntheticInstance, out_dir, *, random_seed: int | N
     ``<name>.truth.json`` (product, pose, landmarks in scanner and canonical
     coordinates, dimensions, voxel size, deformation parameters),
     ``<name>.truth.npz`` (``canonical`` (n, 3) float32 and ``parts`` (n,)
-    uint8, in vertex order) and, if the instance has one,
-    ``volumes/<name>.mha``. Every file is written atomically.
+    uint8, in vertex order) and, if the instance has them,
+    ``volumes/<name>.mha`` (CT-like) and ``volumes-mri/<name>.mha``
+    (MRI-like). Every file is written atomically.
 
     Returns
     -------
@@ -1047,9 +1137,10 @@ def write_instance(instance: SyntheticInstance, out_dir, *, random_seed: int | N
         tmp.write_text(json.dumps(truth, indent=2))
     with atomic_path(npz_path, HortishapeError) as tmp, open(tmp, "wb") as fh:
         np.savez_compressed(fh, canonical=instance.canonical.astype(np.float32), parts=instance.parts)
-    if instance.volume is not None:
-        (out / "volumes").mkdir(exist_ok=True)
-        write_volume(out / "volumes" / f"{instance.name}.mha", instance.volume)
+    for folder, vol in (("volumes", instance.volume), (MRI_FOLDER, instance.mri_volume)):
+        if vol is not None:
+            (out / folder).mkdir(exist_ok=True)
+            write_volume(out / folder / f"{instance.name}.mha", vol)
     return mesh_path
 
 
@@ -1255,7 +1346,8 @@ def write_population(
     random_state : int or None, default: None
     pose, noise, n_vertices, family : see :func:`make_instance`
     volumes : bool, default: False
-        Also write a CT-like volume per instance under ``out_dir/volumes``.
+        Also write a CT-like volume per instance under ``out_dir/volumes``
+        and an MRI-like one under ``out_dir/volumes-mri``.
     views : int, default: 0
         Also write this many depth views of each instance from random
         directions (:func:`write_views`: ``out_dir/views/<name>.view<j>.ply``).
