@@ -52,8 +52,10 @@ def _describe(item) -> str:
                                                     f", orientation confidence {confidence:.2f}")
                 + ("" if item.converged else ", not converged"))
     if hasattr(item, "volume_mm3"):  # an extraction
+        n_warn = len(getattr(item, "warnings", ()))
         return (f" {name}: {'resumed' if item.resumed else 'extracted'} in {item.seconds:.1f} s, "
-                f"{item.n_vertices:,} vertices, {item.volume_mm3 / 1000:.1f} mL")
+                f"{item.n_vertices:,} vertices, {item.volume_mm3 / 1000:.1f} mL"
+                + (f", {n_warn} warning{'s' if n_warn > 1 else ''}" if n_warn else ""))
     return f" {name}"
 
 
@@ -155,7 +157,9 @@ def _add_synth(sub) -> None:
             "  OUT/<product>_<i>.ply         the scan (binary PLY, mm)\n"
             "  OUT/<product>_<i>.truth.json  pose, landmarks (stalk_tip, bottom), dimensions\n"
             "  OUT/<product>_<i>.truth.npz   canonical body-frame coordinates of every vertex\n"
-            "  OUT/volumes/<product>_<i>.mha a CT-like volume (with --volumes)\n\n"
+            "  OUT/volumes/<product>_<i>.mha a CT-like volume (with --volumes)\n"
+            "  OUT/volumes-mri/<product>_<i>.mha an MRI-like volume (with --volumes): a thin bright peel\n"
+            "      over a dark rind, flesh in segments, a core open to the blossom end, 8-bit\n\n"
             "The same canonical coordinates mark the same anatomical place on every instance, "
             "so the true correspondence between any two instances is known.\n\n"
             f"Products:\n{products}\n\n"
@@ -175,7 +179,8 @@ def _add_synth(sub) -> None:
                    help="standard deviation of scanner noise along the normals, mm")
     p.add_argument("--vertices", type=_positive_int, default=None, metavar="V",
                    help="about how many vertices per scan (default: drawn between 70,000 and 130,000)")
-    p.add_argument("--volumes", action="store_true", help="also write a CT-like intensity volume per instance")
+    p.add_argument("--volumes", action="store_true",
+                   help="also write a CT-like and an MRI-like intensity volume per instance")
     p.add_argument("--view", type=_positive_int, default=None, metavar="K",
                    help="also write what a depth camera sees of each instance from K random directions: "
                         "OUT/views/<name>.view<j>.ply point clouds (1 point per mm^2 of outline, with normals, 0.2 mm "
@@ -215,21 +220,28 @@ def _run_synth(args) -> int:
 def _add_extract(sub) -> None:
     p = sub.add_parser(
         "extract",
-        help="extract the product's outer surface from CT volumes",
+        help="extract the product's outer surface from CT or MRI volumes",
         description=(
-            "Extract the outer surface of the product in each CT VOLUME (MHA/MHD, NRRD, NIfTI, a TIFF "
-            "stack, or a folder holding a DICOM series or TIFF slices; spacing, origin and direction "
+            "Extract the outer surface of the product in each CT or MRI VOLUME (MHA/MHD, NRRD, NIfTI, a "
+            "TIFF stack, or a folder holding a DICOM series or TIFF slices; spacing, origin and direction "
             "are applied, lengths in mm):\n"
-            "  1. the iso level half-way between the background and product intensities (the histogram's\n"
-            "     peaks either side of Otsu's threshold), or --level;\n"
-            "  2. the largest object above it; a support or scanner bed touching it is dropped; interior\n"
-            "     cavities (a pepper's hollow, an apple's core) are filled;\n"
+            "  1. the iso level on the boundary between air and the outermost tissue: half-way between\n"
+            "     the background and product intensities (the histogram's peaks either side of Otsu's\n"
+            "     threshold), or, where rays from outside meet a tissue of another brightness first (a\n"
+            "     peel over a dark rind in MRI), the value where they rise most steeply; or --level;\n"
+            "  2. the outer surface by construction: everything that cannot be reached from outside is\n"
+            "     inside (a pepper's hollow, an apple's core, the gaps between segments); gaps and\n"
+            "     channels 1, 2, 4 or 8 mm wide are closed in turn until the product is one solid of\n"
+            "     genus 0; the largest piece is kept, and a support or scanner bed touching it dropped;\n"
             "  3. marching cubes on the intensity (sub-voxel accurate), one closed surface with outward\n"
             "     normals; Taubin smoothing (--smoothing) and decimation (--target-vertices).\n\n"
             "Writes for every VOLUME:\n"
             "  DIR/<stem>.ply   the surface (binary PLY, mm, world coordinates)\n"
-            "  DIR/<stem>.json  levels, voxel counts, seconds\n"
-            "  DIR/<stem>.png   the surface beside two slices of the volume with its outline on them\n\n"
+            "  DIR/<stem>.json  levels and why, gaps closed, genus, voxel counts, warnings, seconds\n"
+            "  DIR/<stem>.png   the surface beside two slices of the volume with its outline on them,\n"
+            "                   the level's explanation and the warnings\n\n"
+            "Warnings (on stderr and in the JSON): gaps that had to be closed, a product touching the\n"
+            "volume's border, a size far from a fruit's, a support that takes most of the voxels.\n\n"
             "A volume that cannot be used is reported in one line and skipped (--strict stops); run "
             "again and volumes already extracted with the same options are not redone."
         ),
@@ -239,8 +251,8 @@ def _add_extract(sub) -> None:
     p.add_argument("volumes", type=Path, nargs="+", metavar="VOLUME", help="volume files or DICOM/TIFF folders")
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder (created if needed)")
     p.add_argument("--level", type=float, default=None, metavar="L",
-                   help="iso level in the volume's intensity units; when not given, half-way between the "
-                        "background and product intensities")
+                   help="iso level in the volume's intensity units; when not given, on the boundary between "
+                        "the background and the outermost tissue (see above)")
     p.add_argument("--target-vertices", type=_positive_int, default=None, metavar="N",
                    help="decimate each surface to about N vertices; when not given, marching cubes' "
                         "resolution is kept")
@@ -277,6 +289,8 @@ def _run_extract(args) -> int:
                                                         if r.n_support_voxels else "")
             print(f"{r.name:<24}{r.n_vertices:>10,}{r.volume_mm3 / 1000:>9.1f}{r.level:>9.4g}"
                   f"{r.seconds:>9.1f}  {note.strip()}")
+            for w in r.warnings:
+                print(f"hortishape: warning: {r.source}: {w}", file=sys.stderr)
         else:
             print(f"hortishape: error: {r.error}", file=sys.stderr)
     failed = sum(not r.ok for r in results)

@@ -27,3 +27,7 @@ class NotFittedError(HortishapeError, AttributeError):
 
 class ConvergenceWarning(UserWarning):
     """An iterative step (registration) stopped before meeting its convergence test."""
+
+
+class ExtractionWarning(UserWarning):
+    """An extracted surface needs a look: gaps were closed, the product is cut off, or of no fruit's size."""

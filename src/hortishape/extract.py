@@ -1,44 +1,63 @@
-"""From CT volumes to surfaces: segment the product and mesh its outer surface.
+"""From CT and MRI volumes to surfaces: segment the product and mesh its outer surface.
 
-:func:`extract_surface` turns a CT volume (:class:`~hortishape.io.Volume`)
-into one closed, outward-oriented triangle surface in world millimetres, the
-kind of scan the rest of hortishape works on:
+:func:`extract_surface` turns a volume (:class:`~hortishape.io.Volume`)
+into one closed, outward-oriented triangle surface of genus 0 in world
+millimetres, the kind of scan the rest of hortishape works on:
 
-1. **Intensities** (:func:`intensity_levels`). A histogram of the voxel
-   values, Otsu's threshold between product and background, and the peak of
-   the histogram on either side of it: the background and the product
-   intensity. The iso level is half-way between the two peaks. Under the
-   partial-volume model of a CT scanner (a voxel half air and half flesh has
-   the half-way value) the iso-surface at that level runs through the true
-   edge, to a small fraction of a voxel. The peaks, not the class means, are
-   used: partial-volume voxels, a low-density core or a support would pull a
-   mean away.
-2. **The product.** Voxels above the level, in 6-connected components; the
-   largest is the product. When it touches the border of the volume (a
+1. **The level** (:func:`intensity_levels`) lies on the boundary between air
+   and the outermost tissue. A histogram of the voxel values, Otsu's
+   threshold between product and background, and the peak of the histogram
+   on either side of it give the background and the product intensity. Rays
+   along the volume's finest axes, entering the product from outside where
+   they cross its surface nearly square, then see which tissue comes first.
+   When it is the product's main tissue (CT of most fruit) the level is
+   half-way between the two peaks: under the partial-volume model of a
+   scanner the iso-surface at that level runs through the true edge, to a
+   small fraction of a voxel. When the first tissue is of another
+   brightness (MRI: a thin bright peel over a dark rind, brighter flesh
+   inside), the level is the value on the outer boundary of a model of the
+   layers (blurred steps, and the noise floor of a magnitude image) fitted
+   to the rays' profile across the edge: it holds on a peel too thin to
+   reach its full brightness, and is not lifted by MRI's magnitude noise in
+   the background.
+2. **The product, by construction.** Outside is every voxel at or below the
+   level that can be reached from the volume's border through such voxels;
+   the solid is everything else, so a pepper's hollow, an apple's core and
+   air pockets are inside. Where the outside gets in through an opening (an
+   MRI orange's core opens to the top through its stalk channel, the gaps
+   between its segments open into the core), the solid has tunnels (genus
+   above 0) or is an open shell around the flesh: the outside is then
+   reached by a box of 1, 2, 4, 8 mm (:data:`GAPS_MM`, a morphological
+   opening of the free voxels), which cannot pass gaps narrower than it,
+   until the product is one solid of genus 0 (its Euler number, counted
+   slab by slab) around no other piece. The largest 6-connected piece of the
+   solid is the product. When it touches the border of the volume (a
    scanner bed or a support does, the product normally does not), it is
    eroded by ``support_radius``: parts that then come apart from the product
-   and reach the border are dropped as a support. Interior cavities (the
-   hollow of a pepper, the low-density core of an apple, air pockets) are
-   filled: every region below the level that does not reach the border of
-   the volume becomes part of the product.
+   and reach the border are dropped as a support.
 3. **Marching cubes** (Lewiner) on the *intensity*, not on the mask, which is
-   what gives sub-voxel accuracy: inside filled cavities the intensity is
-   raised to the product's, voxels above the level that are not the product
-   (other objects, a support) are lowered to the background's, and every
-   other voxel keeps its value. The surface is therefore exactly the outer
-   boundary of the product, one closed component, in world coordinates
-   (``origin + direction @ (spacing * index)``), with outward normals.
+   what gives sub-voxel accuracy: inside the product the intensity is raised
+   above the level where it is below, outside the product every voxel above
+   the level is lowered below it, and every other voxel keeps its value. The
+   surface is therefore exactly the outer boundary of the product, one
+   closed component, in world coordinates (``origin + direction @ (spacing *
+   index)``), with outward normals.
 4. Optionally, **Taubin smoothing** (:func:`taubin_smooth`, a low-pass
    filter that does not shrink the shape) and **decimation** to a target
    vertex count (:func:`decimate`, quadric error edge collapses).
+
+What a person should look at is said in :attr:`Extraction.warnings` (and as
+:class:`~hortishape.errors.ExtractionWarning`): gaps that had to be closed
+and what was filled, a genus that stays above 0, a product touching the
+volume's border, a size far from a fruit's, a support that takes most of the
+voxels.
 
 Memory: a 512^3 ``int16`` volume is 256 MB, a 1000^3 one 2 GB. The work is
 done in slabs of a few million voxels along the volume's last axis.
 Connected components are labelled slab by slab and joined with a union-find
 over the slab boundaries; the only whole-volume array besides the volume is
 one byte per voxel (each slab's labels), and meshing runs slab by slab on the
-object's bounding box. Peak memory is about 1.5 times the size of an
-``int16`` volume on top of the volume itself.
+object's bounding box.
 
 :func:`extract_files` runs a batch of volume files (``hortishape extract``)
 resumably; :func:`render_extraction` draws the surface beside two slices of
@@ -54,7 +73,8 @@ import os
 import tempfile
 import time
 import traceback
-from dataclasses import asdict, dataclass
+import warnings
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Sequence
 
@@ -62,7 +82,7 @@ import numpy as np
 
 from ._version import __version__
 from ._batch import raise_failed, run_jobs
-from .errors import HortishapeError, MeshError, VolumeError
+from .errors import ExtractionWarning, HortishapeError, MeshError, VolumeError
 from ._files import Progress, atomic_path
 from .io import Volume, read_volume, volume_formats, write_mesh
 from .mesh import Mesh
@@ -95,6 +115,52 @@ _COARSE_VOXELS = 4_000_000
 # A product smaller than this many voxels is taken as no product at all.
 _MIN_OBJECT_VOXELS = 27
 
+#: Gap widths (mm) tried in turn when closing the product: 0 fills only
+#: cavities that are sealed off; each next width also closes gaps and channels
+#: narrower than it (a box of that size cannot pass), until the product is one
+#: solid of genus 0 that encloses no other piece.
+GAPS_MM = (0.0, 1.0, 2.0, 4.0, 8.0)
+#: A channel: the outside reaches deeper into the product than ``PIT_DEPTH``
+#: of its smallest extent beyond where a box ``PIT_BOX_MM`` wide (at most
+#: ``PIT_BOX_SHARE`` of that extent) reaches.
+PIT_BOX_MM = 8.0
+PIT_BOX_SHARE = 0.25
+PIT_DEPTH = 0.25
+#: A solid piece at least this share of the product's voxels, lying inside
+#: the product's bounding box, means the outside leaked in (an open shell).
+ENCLOSED_MIN_SHARE = 0.01
+#: How many of the largest other pieces are checked for that.
+ENCLOSED_CHECKED = 4
+#: A support that takes more than this share of the voxels above the level
+#: is warned about; one that would leave less than ``1 - SUPPORT_REFUSE_SHARE``
+#: of them is the product itself: it is kept whole, with a warning.
+SUPPORT_WARN_SHARE = 0.5
+SUPPORT_REFUSE_SHARE = 0.95
+#: The outermost tissue: rays along the volume's two finest axes, from outside,
+#: stop where two voxels in a row are above the background by ``OUTER_DETECT``
+#: of the contrast (or ``OUTER_NOISE`` times the background's noise, if more);
+#: only rays within ``OUTER_ANGLE`` degrees of the surface's normal count
+#: (``OUTER_ROWS`` rows sampled per axis). The tissue's intensity is the
+#: median over the rays of the brightest voxel within ``OUTER_WINDOW_MM``
+#: beyond. When it differs from the histogram's product peak by more than
+#: ``OUTER_DIFFERS`` of the contrast, the level is fitted on its edge instead.
+OUTER_DETECT = 0.15
+OUTER_NOISE = 5.0
+OUTER_WINDOW_MM = 2.0
+OUTER_DIFFERS = 0.25
+OUTER_ROWS = 8000
+OUTER_ANGLE = 20.0
+#: The rays' edge profile: from ``OUTER_BEFORE_MM`` outside the edge to
+#: ``OUTER_AFTER_MM`` inside, in bins of ``OUTER_BIN_MM``.
+OUTER_BEFORE_MM = 3.0
+OUTER_AFTER_MM = 6.0
+OUTER_BIN_MM = 0.05
+#: Fewer rays than this reaching the product: the histogram's peaks are kept.
+OUTER_MIN_RAYS = 50
+#: A surface smaller or larger across than this (mm) is warned about (the
+#: size check refuses outside :data:`hortishape.units.PLAUSIBLE_EXTENT_MM`).
+FRUIT_EXTENT_MM = (10.0, 600.0)
+
 
 # --------------------------------------------------------------------------
 # Intensity levels
@@ -114,14 +180,37 @@ class IntensityLevels:
     threshold : float
         Otsu's threshold (or the given level) that splits the histogram.
     level : float
-        The iso level of the surface: half-way between ``background`` and
-        ``foreground``, or the given level. Voxels above it are inside.
+        The iso level of the surface, on the boundary between the background
+        and the outermost tissue (see ``method``), or the given level.
+        Voxels above it are inside.
+    outer : float
+        Intensity of the outermost tissue, seen by rays from outside (NaN
+        when too few rays reach the product, or with a given level).
+    method : str
+        How the level was chosen: ``"peaks"`` (half-way between the
+        histogram's peaks: the outermost tissue is the product's main one),
+        ``"outer"`` (the outermost tissue differs from the main one, a peel
+        in MRI: the value on its outer boundary, from a model of the layers
+        fitted to the rays' profile across the edge) or ``"given"``.
     """
 
     background: float
     foreground: float
     threshold: float
     level: float
+    outer: float = float("nan")
+    method: str = "peaks"
+
+    def explain(self) -> str:
+        """One sentence on how the level was chosen, for logs and pictures."""
+        if self.method == "given":
+            return f"level {self.level:g} (given)"
+        if self.method == "outer":
+            return (f"level {self.level:.4g}: on the outer edge of the outermost tissue ({self.outer:.4g}, "
+                    f"which differs from the main tissue, {self.foreground:.4g}), fitted to rays from "
+                    f"the background ({self.background:.4g})")
+        return (f"level {self.level:.4g}: half-way between the background ({self.background:.4g}) and "
+                f"the product ({self.foreground:.4g})")
 
 
 def _as_volume(volume) -> Volume:
@@ -163,9 +252,12 @@ def intensity_levels(volume, *, level: float | None = None, name: str = "volume"
     volume : Volume or (nx, ny, nz) array_like
         The CT volume (an array is taken with 1 mm voxels).
     level : float, optional
-        The iso level. Default: half-way between the background and product
-        intensities, which are the histogram's peaks either side of Otsu's
-        threshold. With a given level the peaks are taken either side of it.
+        The iso level. Default: on the boundary between the background and
+        the outermost tissue (see the module docstring): half-way between the
+        histogram's peaks either side of Otsu's threshold, or, where rays
+        from outside enter a first tissue of another brightness, the value on
+        its outer boundary from a model of the layers fitted to the rays.
+        With a given level the peaks are taken either side of it.
     name : str, default: "volume"
         What to call the volume in error messages (usually its file name).
 
@@ -226,8 +318,192 @@ def intensity_levels(volume, *, level: float | None = None, name: str = "volume"
         side = counts.astype(np.float64)
         bg = _peak(gaussian_filter1d(np.where(below, side, 0.0), sigma, mode="constant"), centres, width)
         fg = _peak(gaussian_filter1d(np.where(below, 0.0, side), sigma, mode="constant"), centres, width)
-    iso = 0.5 * (bg + fg) if level is None else level
-    return IntensityLevels(background=bg, foreground=fg, threshold=threshold, level=float(iso))
+    if level is not None:
+        return IntensityLevels(background=bg, foreground=fg, threshold=threshold, level=float(level),
+                               method="given")
+    below_bg = centres <= bg
+    noise = (math.sqrt(np.average((centres[below_bg] - bg) ** 2, weights=counts[below_bg]))
+             if counts[below_bg].sum() else 0.0)
+    outer, edge, rays = _outer_intensity(vol, bg, fg, noise)
+    if math.isfinite(outer) and abs(outer - fg) > OUTER_DIFFERS * abs(fg - bg):
+        # magnitude images (MRI) have no values below 0 and their background near 0
+        magnitude = vmin >= 0 and bg < 0.1 * (fg - bg)
+        fitted = _edge_level(rays, edge, bg, outer, magnitude)
+        return IntensityLevels(background=bg, foreground=fg, threshold=threshold,
+                               level=fitted if math.isfinite(fitted) else edge, outer=outer, method="outer")
+    return IntensityLevels(background=bg, foreground=fg, threshold=threshold, level=0.5 * (bg + fg),
+                           outer=outer, method="peaks")
+
+
+def _along_normal(data: np.ndarray, spacing: np.ndarray, place: np.ndarray, axis: int) -> np.ndarray:
+    """Whether the intensity gradient at each voxel ``place`` (k, 3) is within
+    ``OUTER_ANGLE`` degrees of the index axis ``axis`` (False at the border)."""
+    shape = np.asarray(data.shape)
+    inner = np.all((place >= 1) & (place <= shape - 2), axis=1)
+    grad = np.zeros((len(place), 3))
+    p = place[inner]
+    for a in range(3):
+        up, down = p.copy(), p.copy()
+        up[:, a] += 1
+        down[:, a] -= 1
+        grad[inner, a] = (data[tuple(up.T)].astype(np.float64) - data[tuple(down.T)]) / spacing[a]
+    norm = np.linalg.norm(grad, axis=1)
+    return inner & (np.abs(grad[:, axis]) >= math.cos(math.radians(OUTER_ANGLE)) * norm) & (norm > 0)
+
+
+def _outer_intensity(vol: Volume, background: float, foreground: float, noise: float):
+    """Intensity of the outermost tissue and of its outer edge, from rays that enter the product.
+
+    Rows of voxels along the volume's two finest axes (a subsample of them),
+    read from both ends, stop at the first two voxels in a row above a
+    detection threshold; only rays that cross the surface nearly square are
+    kept. The ray's tissue intensity is its brightest voxel within
+    ``OUTER_WINDOW_MM`` beyond; its edge intensity is the value where it
+    rises most steeply there (a first estimate: on a thin peel it lies
+    outside the boundary, see :func:`_edge_level`). Returns the medians over
+    the rays and the rays themselves, ``(rows, first hit, spacing)`` per
+    axis and direction (NaNs and no rays with fewer than ``OUTER_MIN_RAYS``).
+    Assumes a product brighter than its background, as in CT and MRI.
+    """
+    if foreground <= background:
+        return float("nan"), float("nan"), []
+    data = vol.data
+    detect = background + max(OUTER_DETECT * (foreground - background), OUTER_NOISE * noise)
+    maxima, edges, rays = [], [], []
+    for axis in np.argsort(vol.spacing, kind="stable")[:2]:
+        n = data.shape[axis]
+        others = [a for a in range(3) if a != axis]
+        n_rows = data.shape[others[0]] * data.shape[others[1]]
+        stride = max(1, math.ceil(math.sqrt(n_rows / OUTER_ROWS)))
+        index = [slice(None)] * 3
+        for a in others:
+            index[a] = slice(None, None, stride)
+        rows = np.moveaxis(np.asarray(data[tuple(index)]), axis, -1).reshape(-1, n).astype(np.float32)
+        # each row's place along the other two axes
+        across = np.stack(np.meshgrid(*(np.arange(0, data.shape[a], stride) for a in others), indexing="ij"),
+                          axis=-1).reshape(-1, 2)
+        window = max(3, math.ceil(OUTER_WINDOW_MM / float(vol.spacing[axis])))
+        if n < window + 3:
+            continue
+        for backwards in (False, True):
+            r = rows[:, ::-1] if backwards else rows
+            high = r > detect
+            pair = high[:, :-1] & high[:, 1:]
+            first = pair.argmax(axis=1)
+            # from outside: the ray starts in the background
+            ok = pair.any(axis=1) & (first >= 2)
+            if ok.any():
+                place = np.full((len(r), 3), -1)
+                place[:, axis] = np.where(backwards, n - 1 - first, first)
+                place[:, others[0]], place[:, others[1]] = across[:, 0], across[:, 1]
+                # rays that cross the surface within OUTER_ANGLE of its normal: a slanted
+                # ray stretches the edge, and a thin peel's peak fades on it
+                ok &= _along_normal(data, vol.spacing, place, axis)
+            if ok.sum() < 2:
+                continue
+            r, first = r[ok], first[ok]
+            rays.append((r, first, float(vol.spacing[axis])))
+            at = np.clip(first[:, None] + np.arange(window)[None, :], 0, n - 1)
+            maxima.append(np.take_along_axis(r, at, axis=1).max(axis=1))
+            # the steepest point of the edge, from two voxels before the hit to the window's end
+            at = np.clip(first[:, None] + np.arange(-1, window)[None, :], 1, n - 2)
+            rise = np.take_along_axis(r, at + 1, axis=1) - np.take_along_axis(r, at - 1, axis=1)
+            j = rise.argmax(axis=1)
+            i = at[np.arange(len(r)), j]
+            # between voxels: the top of a parabola through the rises about the steepest
+            g0, g1, g2 = (rise[np.arange(len(r)), np.clip(j + d, 0, rise.shape[1] - 1)] for d in (-1, 0, 1))
+            curve = g0 - 2.0 * g1 + g2
+            shift = np.clip(np.divide(0.5 * (g0 - g2), curve, out=np.zeros_like(curve), where=curve < 0), -0.5, 0.5)
+            edges.append(r[np.arange(len(r)), i] + shift * 0.5 * g1)
+    if not maxima or sum(map(len, maxima)) < OUTER_MIN_RAYS:
+        return float("nan"), float("nan"), []
+    return float(np.median(np.concatenate(maxima))), float(np.median(np.concatenate(edges))), rays
+
+
+def _edge_profile(rays, level: float):
+    """The rays' mean profile across the outer edge, finely sampled: ``(u mm, mean, count)``.
+
+    Each ray is placed by where it crosses ``level`` between voxels, so the
+    rays' voxels fall at all offsets from the edge: together they sample the
+    edge far finer than one voxel (as the slanted-edge method of measuring a
+    scanner's blur does). Bins of ``OUTER_BIN_MM`` from ``-OUTER_BEFORE_MM``
+    to ``OUTER_AFTER_MM`` about the crossing.
+    """
+    us, vs = [], []
+    for r, first, spacing in rays:
+        n = r.shape[1]
+        rows = np.arange(len(r))
+        reach = max(3, math.ceil(OUTER_WINDOW_MM / spacing))
+        at = np.clip(first[:, None] + np.arange(-2, reach)[None, :], 0, n - 2)
+        a, b = np.take_along_axis(r, at, axis=1), np.take_along_axis(r, at + 1, axis=1)
+        cross = (a <= level) & (b > level)
+        has = cross.any(axis=1)
+        j = cross.argmax(axis=1)
+        k = at[rows, j]
+        lo, hi = a[rows, j], b[rows, j]
+        x = k + (level - lo) / np.where(hi > lo, hi - lo, 1.0)
+        before, after = math.ceil(OUTER_BEFORE_MM / spacing) + 1, math.ceil(OUTER_AFTER_MM / spacing) + 1
+        pos = k[:, None] + np.arange(-before, after + 1)[None, :]
+        inside = (pos >= 0) & (pos < n) & has[:, None]
+        pos = np.clip(pos, 0, n - 1)
+        us.append(((pos - x[:, None]) * spacing)[inside])
+        vs.append(np.take_along_axis(r, pos, axis=1)[inside])
+    u, v = np.concatenate(us), np.concatenate(vs).astype(np.float64)
+    keep = (u >= -OUTER_BEFORE_MM) & (u < OUTER_AFTER_MM)
+    b = ((u[keep] + OUTER_BEFORE_MM) / OUTER_BIN_MM).astype(np.int64)
+    count = np.bincount(b)
+    total = np.bincount(b, weights=v[keep])
+    centre = -OUTER_BEFORE_MM + (np.arange(len(count)) + 0.5) * OUTER_BIN_MM
+    full = count >= 5
+    return centre[full], total[full] / count[full], count[full]
+
+
+def _edge_level(rays, provisional: float, background: float, outer: float, magnitude: bool) -> float:
+    """The intensity on the outer boundary, from a model of the layers fitted to the rays' edge profile.
+
+    Along the normal, the intensity steps from the background ``b`` to the
+    outer tissue ``P`` at the boundary, then to a second layer ``R`` and a
+    third ``F``, each step blurred by the same Gaussian (a scanner's point
+    spread). A thin peel never reaches ``P`` once blurred, and its inner
+    edge pulls the steepest point of its outer edge outwards; the model
+    knows both, so the value it gives on the boundary holds for thick and
+    thin peels alike. In a magnitude image (MRI) the background's noise
+    lifts dark voxels: the model's intensity is ``sqrt(S^2 + c^2)``, with
+    ``S`` the layers' and ``c`` the noise floor. NaN when the fit fails.
+    """
+    from scipy.optimize import least_squares
+    from scipy.special import ndtr
+
+    u, mean, count = _edge_profile(rays, provisional)
+    if len(u) < 20:
+        return float("nan")
+    weight = np.sqrt(count)
+    lo_v, hi_v = float(mean.min()), float(mean.max())
+    span = max(hi_v - lo_v, 1e-9)
+
+    def model(q, u):
+        u0, s, t, t2, P, R, F, floor = q
+        b = 0.0 if magnitude else floor
+        layers = (b + (P - b) * ndtr((u - u0) / s) + (R - P) * ndtr((u - u0 - t) / s)
+                  + (F - R) * ndtr((u - u0 - t - t2) / s))
+        return np.sqrt(layers**2 + floor**2) if magnitude else layers
+
+    def residual(q):
+        return weight * (model(q, u) - mean) / span
+
+    beyond = mean[u > 1.0]
+    start = np.array([0.0, 0.3, 1.0, 2.0, outer, float(beyond.min()) if len(beyond) else outer,
+                      hi_v, max(background, 0.0) if magnitude else background])
+    lower = [-2.0, 0.02, 0.05, 0.05, lo_v - span, lo_v - span, lo_v - span, 0.0 if magnitude else lo_v - span]
+    upper = [2.0, 3.0, 10.0, 20.0, hi_v + span, hi_v + span, hi_v + span, hi_v]
+    start = np.clip(start, np.asarray(lower) + 1e-9, np.asarray(upper) - 1e-9)
+    try:
+        fit = least_squares(residual, start, bounds=(lower, upper), x_scale="jac", max_nfev=400)
+    except (ValueError, np.linalg.LinAlgError):
+        return float("nan")
+    if not fit.success:
+        return float("nan")
+    return float(model(fit.x, np.array([fit.x[0]]))[0])
 
 
 # --------------------------------------------------------------------------
@@ -257,10 +533,11 @@ class _Components:
     they are computed again when needed (labelling is deterministic).
 
     Attributes per component (index ``c``): ``size[c]`` voxels and
-    ``border[c]``, whether it touches the region's border.
+    ``border[c]``, whether it touches the region's border; ``with_boxes``,
+    also its bounding box (:meth:`bounds`, :meth:`boxes`).
     """
 
-    def __init__(self, get_mask, slabs, work) -> None:
+    def __init__(self, get_mask, slabs, work, *, with_boxes: bool = False) -> None:
         from scipy import ndimage
         from scipy.sparse import coo_matrix
         from scipy.sparse.csgraph import connected_components
@@ -271,7 +548,7 @@ class _Components:
         self.z_lo = slabs[0][0]
         self._structure = ndimage.generate_binary_structure(3, 1)
         offsets, counts, stored = [], [], []
-        sizes, borders, pairs = [], [], []
+        sizes, borders, pairs, boxes = [], [], [], []
         total = 0
         previous = None
         for k, (z0, z1) in enumerate(slabs):
@@ -280,6 +557,11 @@ class _Components:
             counts.append(n)
             if n:
                 sizes.append(np.bincount(lab.ravel(), minlength=n + 1)[1:])
+                if with_boxes:
+                    found = ndimage.find_objects(lab)  # every label is present: none is None
+                    box = np.array([[f.start for f in sl] + [f.stop for f in sl] for sl in found], dtype=np.int64)
+                    box[:, [0, 3]] += z0 - self.z_lo
+                    boxes.append(box)
                 touch = np.zeros(n + 1, dtype=bool)
                 for face in (lab[:, 0, :], lab[:, -1, :], lab[:, :, 0], lab[:, :, -1]):
                     touch[face.ravel()] = True
@@ -309,6 +591,7 @@ class _Components:
             self.root = np.zeros(1, dtype=np.int64)
             self.size = np.zeros(0, dtype=np.int64)
             self.border = np.zeros(0, dtype=bool)
+            self.lo = self.hi = np.zeros((0, 3), dtype=np.int64)
             return
         edges = np.concatenate(pairs) - 1 if pairs else np.zeros((0, 2), dtype=np.int64)
         graph = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(total, total))
@@ -316,20 +599,21 @@ class _Components:
         self.root = np.concatenate([[-1], comp]).astype(np.int64)  # global label -> component
         self.size = np.bincount(comp, weights=np.concatenate(sizes), minlength=n_comp).astype(np.int64)
         self.border = np.bincount(comp, weights=np.concatenate(borders), minlength=n_comp) > 0
+        if with_boxes:
+            # each component's bounding box (z, y, x; stop exclusive), from its labels' boxes
+            box = np.concatenate(boxes)
+            self.lo = np.full((n_comp, 3), np.iinfo(np.int64).max)
+            self.hi = np.zeros((n_comp, 3), dtype=np.int64)
+            np.minimum.at(self.lo, comp, box[:, :3])
+            np.maximum.at(self.hi, comp, box[:, 3:])
 
     def bounds(self, chosen: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Bounding box ``(lo, hi)`` (z, y, x; ``hi`` exclusive) of the ``chosen`` components."""
-        lo = np.array([np.iinfo(np.int64).max] * 3)
-        hi = np.zeros(3, dtype=np.int64)
-        for k, (z0, _) in enumerate(self.slabs):
-            m = self.select(k, chosen)
-            for axis, others in ((0, (1, 2)), (1, (0, 2)), (2, (0, 1))):
-                hit = np.flatnonzero(m.any(axis=others))
-                if len(hit):
-                    shift = z0 - self.z_lo if axis == 0 else 0
-                    lo[axis] = min(lo[axis], hit[0] + shift)
-                    hi[axis] = max(hi[axis], hit[-1] + 1 + shift)
-        return lo, hi
+        return self.lo[chosen].min(axis=0), self.hi[chosen].max(axis=0)
+
+    def boxes(self, components) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Bounding boxes ``(lo, hi)`` (z, y, x; ``hi`` exclusive) of each of ``components``."""
+        return [(self.lo[c], self.hi[c]) for c in np.asarray(components, dtype=np.int64)]
 
     def labels(self, k: int) -> np.ndarray:
         """The local labels of slab ``k`` (stored, or computed again)."""
@@ -574,6 +858,17 @@ class Extraction:
     n_marching_cubes_vertices : int
         Vertices of the surface straight from marching cubes, before
         decimation.
+    gap_mm : float
+        Width of the gaps that were closed (0: only sealed cavities were
+        filled); see :data:`GAPS_MM`.
+    attempts : tuple of dict
+        Each gap width tried: ``gap_mm``, ``genus`` of the product's
+        surface, ``enclosed`` (other pieces inside its box: an open shell),
+        ``channel_mm`` (how deep a narrow channel reaches into it, see
+        :data:`PIT_DEPTH`) and ``n_filled_voxels``.
+    warnings : tuple of str
+        What a person should look at (also issued as
+        :class:`~hortishape.errors.ExtractionWarning`).
     """
 
     mesh: Mesh
@@ -583,6 +878,15 @@ class Extraction:
     n_filled_voxels: int
     n_support_voxels: int
     n_marching_cubes_vertices: int
+    gap_mm: float = 0.0
+    attempts: tuple = ()
+    warnings: tuple = ()
+
+    @property
+    def genus(self) -> int:
+        """Genus of the surface (0: a sphere's topology), from its Euler number."""
+        v, f = self.mesh.n_vertices, len(self.mesh.faces)
+        return (2 - (v - f // 2)) // 2  # a closed triangle surface has 3f/2 edges
 
     @property
     def volume(self) -> float:
@@ -637,105 +941,291 @@ def _weld(chunks, boundaries) -> tuple[np.ndarray, np.ndarray]:
     return verts[used], renumber[faces]
 
 
-def _mesh_product(vol: Volume, iso: float, inside_value: float, outside_value: float, *,
-                  remove_support: bool, support_radius: float, name: str):
-    """Segment the product and mesh its outer surface in voxel indices.
+def _opened_free(data: np.ndarray, iso: float, z0: int, z1: int, box) -> np.ndarray:
+    """Voxels at or below the level, of planes ``[z0, z1)``, that a box of ``box`` voxels fits around.
 
-    Returns ``(index_vertices (n, 3) float64 along x, y, z, faces (m, 3) int64,
-    bounds, n_object, n_filled, n_support)``. Every whole-volume work array
-    lives only inside this function.
+    A morphological opening of the free (below-level) voxels by a box of
+    ``box`` = (bz, by, bx) voxels (odd sizes): an erosion then a dilation
+    along each axis. Beyond the volume is air, so a box may stick out of it,
+    but it must cover some of the volume. ``box`` (1, 1, 1) gives the free
+    voxels themselves.
     """
-    from skimage.measure import marching_cubes
+    if all(b == 1 for b in box):
+        return data[z0:z1] <= iso
+    halo = 2 * (box[0] // 2)
+    a0, a1 = max(0, z0 - halo), min(data.shape[0], z1 + halo)
+    m = data[a0:a1] <= iso
+    for axis, b in enumerate(box):
+        m = _sweep(m, b // 2, axis, erode=True)
+    for axis, b in enumerate(box):
+        m = _sweep(m, b // 2, axis, erode=False)
+    return m[z0 - a0 : z1 - a0]
 
-    # (z, y, x) view: slabs along the volume's last axis are contiguous in memory
-    # for volumes read from files (x varies fastest on disk).
-    data = vol.data.transpose(2, 1, 0)
+
+def _sweep(m: np.ndarray, radius: int, axis: int, *, erode: bool) -> np.ndarray:
+    """Erosion (AND) or dilation (OR) of a boolean array over ``2 radius + 1`` voxels along ``axis``.
+
+    By doubling: windows of 3, 5, 9, ... voxels from shifted copies, a few
+    whole-array operations instead of a filter per line. Beyond the array
+    counts as True for the erosion (air) and as False for the dilation (no
+    box is centred outside the volume).
+    """
+    if radius <= 0:
+        return m
+    op = np.logical_and if erode else np.logical_or
+    out = m.copy()
+    reach = 0  # out[i] combines m over [i - reach, i + reach]
+    while reach < radius:
+        step = min(reach + 1, radius - reach)  # grow the window by `step` on each side
+        prev = out.copy()
+        lead = [slice(None)] * m.ndim
+        tail = [slice(None)] * m.ndim
+        lead[axis], tail[axis] = slice(step, None), slice(None, -step)
+        op(out[tuple(lead)], prev[tuple(tail)], out=out[tuple(lead)])
+        op(out[tuple(tail)], prev[tuple(lead)], out=out[tuple(tail)])
+        reach += step
+    return out
+
+
+def _probe_box(gap_mm: float, spacing_zyx) -> tuple[int, int, int]:
+    """Odd box sizes (voxels along z, y, x) about ``gap_mm`` wide: gaps narrower than it are closed."""
+    if gap_mm <= 0:
+        return (1, 1, 1)
+    return tuple(max(1, int(round(gap_mm / float(s)))) | 1 for s in spacing_zyx)
+
+
+def _euler_number(planes: np.ndarray, n_own: int) -> int:
+    """Euler number (6-connected voxels) of the planes ``planes[:n_own]``, counting the
+    edges, squares and cubes that reach into the next plane ``planes[n_own]`` when given.
+
+    Summed over slabs that share no planes, it is the Euler number of the whole
+    mask: for one solid piece without cavities, ``1 - genus`` of its surface.
+    """
+    own = planes[:n_own]
+    count = int(own.sum())
+    count -= int((own[:, 1:] & own[:, :-1]).sum()) + int((own[:, :, 1:] & own[:, :, :-1]).sum())
+    count += int((own[:, 1:, 1:] & own[:, 1:, :-1] & own[:, :-1, 1:] & own[:, :-1, :-1]).sum())
+    if len(planes) > 1:
+        a, b = planes[: len(planes) - 1], planes[1:]
+        both = a & b  # pairs along z
+        count -= int(both.sum())
+        sq_y = both[:, 1:] & both[:, :-1]
+        sq_x = both[:, :, 1:] & both[:, :, :-1]
+        count += int(sq_y.sum()) + int(sq_x.sum())
+        count -= int((sq_y[:, :, 1:] & sq_y[:, :, :-1]).sum())
+    return count
+
+
+@dataclass
+class _Segmentation:
+    """The product of one gap width: what marching cubes needs, and what the checks found."""
+
+    gap_mm: float
+    box: tuple
+    fg: "_Components"
+    product: np.ndarray
+    slabs: list
+    lo: np.ndarray
+    hi: np.ndarray
+    n_object: int
+    n_filled: int
+    n_support: int
+    support_refused: int
+    genus: int
+    enclosed: int  # other solid pieces inside the product's box or around it: the outside leaked in
+    pit_mm: float = 0.0  # how deep the outside reaches beyond a big box's reach (NaN: not looked at)
+    spacing_zyx: np.ndarray = None
+    mesh_genus: int | None = None  # of the marched surface, when it was marched
+
+    def closed(self) -> bool:
+        """One solid of genus 0, around no other piece, without a narrow channel deep into it."""
+        extent = float(np.min((self.hi - self.lo) * self.spacing_zyx))
+        return self.genus == 0 and not self.enclosed and self.pit_mm <= PIT_DEPTH * extent
+
+
+def _segment(data, iso: float, spacing_zyx, slabs, work, *, gap_mm: float, remove_support: bool,
+             support_radius: float, coarse: int, name: str) -> _Segmentation:
+    """The product for one gap width: the largest piece of what cannot be reached from outside.
+
+    Outside is every voxel at or below the level that a box ``gap_mm`` wide
+    reaches from the volume's border, moving through such voxels; the solid is
+    everything else, so cavities and gaps narrower than the box are inside.
+    Its largest 6-connected piece is the product (without a support that
+    touches it, see :func:`_support_region`).
+    """
     shape = data.shape
-    coarse = max(1, math.ceil((data.size / _COARSE_VOXELS) ** (1.0 / 3.0)))
-    step = max(1, _SLAB_VOXELS // (shape[1] * shape[2]))
-    step = max(coarse, step - step % coarse)
-    slabs = _slab_bounds(0, shape[0], step)
-    work = np.empty(shape, dtype=np.uint8)  # each slab's labels: one byte per voxel
+    box = _probe_box(gap_mm, spacing_zyx)
+    slab_of = {z0: k for k, (z0, _) in enumerate(slabs)}
+    # the outside's labels go to `work` for a moment; the outside is kept as one bit
+    # per voxel, and `work` then holds the solid's labels
+    outs = _Components(lambda z0, z1: _opened_free(data, iso, z0, z1, box), slabs, work)
+    outside = [np.packbits(outs.select(k, outs.border), axis=-1) for k in range(len(slabs))]
+    del outs
 
-    def above(z0: int, z1: int) -> np.ndarray:
-        return data[z0:z1] > iso
+    def solid(z0: int, z1: int) -> np.ndarray:
+        return ~np.unpackbits(outside[slab_of[z0]], axis=-1, count=shape[2]).view(bool)
 
-    fg = _Components(above, slabs, work)
+    fg = _Components(solid, slabs, work, with_boxes=True)
     if fg.n_labels == 0:
         raise VolumeError(f"{name}: no voxel is above the level {iso:g}; no object")
     product = np.zeros(len(fg.size), dtype=bool)
     product[int(np.argmax(fg.size))] = True
-    n_support = 0
+    n_support = refused = 0
     if remove_support and fg.border[product][0]:
-        support = _support_region(lambda k: fg.select(k, product), slabs, shape, vol.spacing[::-1],
+        support = _support_region(lambda k: fg.select(k, product), slabs, shape, spacing_zyx,
                                   support_radius, coarse)
         if support is not None:
             before = int(fg.size[product][0])
 
-            def above_not_support(z0: int, z1: int) -> np.ndarray:
-                return (data[z0:z1] > iso) & ~_upsample(support, z0, z1, shape[1:], coarse)
+            def solid_not_support(z0: int, z1: int) -> np.ndarray:
+                return solid(z0, z1) & ~_upsample(support, z0, z1, shape[1:], coarse)
 
-            fg = _Components(above_not_support, slabs, work)
+            fg = _Components(solid_not_support, slabs, work, with_boxes=True)
             free = np.flatnonzero(~fg.border)
             pool = free if len(free) else np.arange(len(fg.size))
-            product = np.zeros(len(fg.size), dtype=bool)
-            product[pool[int(np.argmax(fg.size[pool]))]] = True
-            n_support = before - int(fg.size[product][0])
-    c = int(np.flatnonzero(product)[0])
-    n_object = int(fg.size[c])
-    if n_object < _MIN_OBJECT_VOXELS:
-        raise VolumeError(
-            f"{name}: no object: the largest region above the level {iso:g} has only {n_object} voxels"
-        )
-    lo, hi = fg.bounds(product)
-    if np.all(lo == 0) and np.all(hi == np.asarray(shape)):
-        raise VolumeError(
-            f"{name}: the object above the level {iso:g} touches all six faces of the volume: there is "
-            "no background around it (is the whole volume object, or the level too low?)"
-        )
+            kept = np.zeros(len(fg.size), dtype=bool)
+            kept[pool[int(np.argmax(fg.size[pool]))]] = True
+            n_support = before - int(fg.size[kept][0])
+            if n_support > SUPPORT_REFUSE_SHARE * before:
+                # not a support: the product itself, but for a fragment; keep it whole
+                refused, n_support = n_support, 0
+                fg = _Components(solid, slabs, work, with_boxes=True)  # again: `work` was overwritten
+                product = np.zeros(len(fg.size), dtype=bool)
+                product[int(np.argmax(fg.size))] = True
+            else:
+                product = kept
+    n_solid = int(fg.size[product][0])
+    # another solid piece of some size inside the product's box, or around it: one
+    # of them is an open shell around the other (a peel whose opening the box
+    # passed through, over the flesh)
+    others = np.flatnonzero(~product & (fg.size >= ENCLOSED_MIN_SHARE * n_solid))
+    others = others[np.argsort(-fg.size[others])][:ENCLOSED_CHECKED]
+    boxes = fg.boxes(np.r_[np.flatnonzero(product), others])
+    lo, hi = boxes[0]
+    enclosed = sum(bool((np.all(c_lo >= lo) and np.all(c_hi <= hi)) or (np.all(c_lo <= lo) and np.all(c_hi >= hi)))
+                   for c_lo, c_hi in boxes[1:])
+    # counts and the Euler number of the product, slab by slab (with the next slab's first plane)
+    n_object = 0
+    euler = 0
+    nxt = fg.select(0, product)
+    for k, (z0, z1) in enumerate(slabs):
+        cur = nxt
+        nxt = fg.select(k + 1, product) if k + 1 < len(slabs) else None
+        if cur.any():
+            n_object += int((cur & (data[z0:z1] > iso)).sum())
+            planes = cur if nxt is None else np.concatenate([cur, nxt[:1]])
+            euler += _euler_number(planes, len(cur))
+    genus = 1 - euler
+    # only a product closed otherwise is looked at for a channel (it takes a while)
+    pit = (_pit_depth(lambda k: ~fg.select(k, product), slabs, shape, spacing_zyx, lo, hi)
+           if genus == 0 and not enclosed else float("nan"))
+    return _Segmentation(gap_mm, box, fg, product, slabs, lo, hi, n_object, n_solid - n_object,
+                         n_support, refused, genus, enclosed, pit, np.asarray(spacing_zyx, dtype=float))
 
-    # Cavities: components of the rest of the product's box (grown by a voxel)
-    # that do not reach the box's border. Their labels overwrite the product's
-    # in `work`, slab by slab; a slab's product mask is read just before.
+
+def _pit_depth(elsewhere, slabs, shape, spacing_zyx, lo, hi) -> float:
+    """How deep (mm) the outside reaches into the product beyond where a box ``PIT_BOX_MM`` wide reaches.
+
+    A fruit's own hollows (a stalk cavity, a calyx basin, the grooves between
+    a pepper's lobes) are about as wide as they are deep: the big box enters
+    them most of the way. A channel a few millimetres wide that leads to the
+    core is not: what only the small box reaches lies deep inside. Worked out
+    on a coarse grid of blocks, from ``elsewhere(k)``, slab ``k``'s voxels not
+    in the product. The big box is at most ``PIT_BOX_SHARE`` of the product's
+    smallest extent.
+    """
+    from scipy import ndimage
+
+    c = max(1, math.ceil((np.prod(shape) / _COARSE_VOXELS) ** (1.0 / 3.0)))
+    nz, ny, nx = shape
+    cz, cy, cx = -(-nz // c), -(-ny // c), -(-nx // c)
+    some = np.zeros((cz, cy, cx), dtype=bool)
+    every = np.zeros((cz, cy, cx), dtype=bool)
+    for k, (z0, z1) in enumerate(slabs):
+        m = elsewhere(k)
+        pad = ((0, (-m.shape[0]) % c), (0, (-ny) % c), (0, (-nx) % c))
+        if any(p[1] for p in pad):
+            m = np.pad(m, pad, constant_values=True)  # beyond the volume is air
+        # one axis at a time: the first reduction reads the slab once, the others far less
+        a = m.reshape(m.shape[0] // c, c, m.shape[1], m.shape[2])
+        any_, all_ = a.any(axis=1), a.all(axis=1)
+        for axis in (1, 2):
+            new_shape = list(any_.shape)
+            new_shape[axis : axis + 1] = [new_shape[axis] // c, c]
+            any_ = any_.reshape(new_shape).any(axis=axis + 1)
+            all_ = all_.reshape(new_shape).all(axis=axis + 1)
+        zs = slice(z0 // c, z0 // c + any_.shape[0])
+        some[zs] |= any_
+        every[zs] = all_  # slabs start at multiples of the coarse factor
+    sampling = np.asarray(spacing_zyx, dtype=np.float64) * c
+    extent = float(np.min((np.asarray(hi) - np.asarray(lo)) * np.asarray(spacing_zyx)))
+    width = min(PIT_BOX_MM, PIT_BOX_SHARE * extent)
+    box = tuple(max(1, int(round(width / s))) | 1 for s in sampling)
+    big = every
+    for axis, b in enumerate(box):
+        big = _sweep(big, b // 2, axis, erode=True)
+    for axis, b in enumerate(box):
+        big = _sweep(big, b // 2, axis, erode=False)
+    lab, n = ndimage.label(big)
+    border = np.zeros(n + 1, dtype=bool)
+    for face in (lab[0], lab[-1], lab[:, 0], lab[:, -1], lab[:, :, 0], lab[:, :, -1]):
+        border[face.ravel()] = True
+    border[0] = False
+    big = border[lab]
+    del lab
+    deep = some & ~big
+    clo, chi = np.asarray(lo) // c, -(-np.asarray(hi) // c)
+    window = tuple(slice(int(a), int(b)) for a, b in zip(clo, chi))
+    inside_box = np.zeros_like(deep)
+    inside_box[window] = True
+    deep &= inside_box
+    if not deep.any():
+        return 0.0
+    return float(ndimage.distance_transform_edt(~big, sampling=sampling)[deep].max())
+
+
+def _march(vol: Volume, data, iso: float, seg: _Segmentation, inside_value: float, outside_value: float,
+           step: int):
+    """Marching cubes of the product's outer surface, slab by slab, in voxel indices.
+
+    Runs on the intensity (sub-voxel accuracy) with the product's below-level
+    voxels raised to ``inside_value`` and every other voxel above the level
+    lowered to ``outside_value``, on the product's box plus a background
+    layer all around, so that the surface closes where the product touches
+    the volume's border. Returns ``(index_vertices (n, 3) along x, y, z,
+    faces (m, 3) int64)``.
+    """
+    from skimage.measure import marching_cubes
+
+    shape = data.shape
+    lo, hi, fg, product = seg.lo, seg.hi, seg.fg, seg.product
     r_lo = np.maximum(lo - 1, 0)
     r_hi = np.minimum(hi + 1, np.asarray(shape))
     ys, xs = slice(int(r_lo[1]), int(r_hi[1])), slice(int(r_lo[2]), int(r_hi[2]))
-    region_shape = tuple(int(v) for v in r_hi - r_lo)
-    bg_slabs = _slab_bounds(int(r_lo[0]), int(r_hi[0]), step)
-    fg_slab = {z0: k for k, (z0, _) in enumerate(slabs)}
-
-    def not_product(z0: int, z1: int) -> np.ndarray:
-        k = fg_slab[z0 - z0 % step]
-        s0 = slabs[k][0]
-        return ~fg.select(k, product, labels=fg.labels(k)[z0 - s0 : z1 - s0, ys, xs])
-
-    region_work = work[int(r_lo[0]) : int(r_hi[0]), ys, xs]
-    bg = _Components(not_product, bg_slabs, region_work)
-    outside = bg.border
-    n_filled = int(bg.size[~outside].sum())
+    box_slabs = _slab_bounds(int(r_lo[0]), int(r_hi[0]), step)
+    fg_slab = {z0: k for k, (z0, _) in enumerate(seg.slabs)}
 
     def filled(k: int) -> np.ndarray:
-        """Product or cavity, on slab ``k`` of the box (label 0 is the product)."""
-        return ~bg.select(k, outside)
+        z0, z1 = box_slabs[k]
+        kk = fg_slab[z0 - z0 % step]
+        s0 = seg.slabs[kk][0]
+        return fg.select(kk, product, labels=fg.labels(kk)[z0 - s0 : z1 - s0, ys, xs])
 
-    # Marching cubes slab by slab on the box plus a background layer all
-    # around, so that the surface closes where the product touches the
-    # volume's border. Slab k covers its planes and the next slab's first.
     level32 = np.float32(iso)
     # small integers are exact in float32, and an integer volume's level is a
     # half-integer: no voxel value can reach or cross the level
     exact = vol.data.dtype.kind in "biu" and vol.data.dtype.itemsize <= 2 and float(level32) == iso
     chunks, boundaries = [], []
     nxt = filled(0)
-    for k, (z0, z1) in enumerate(bg_slabs):
+    for k, (z0, z1) in enumerate(box_slabs):
         cur = nxt
-        last = k == len(bg_slabs) - 1
+        last = k == len(box_slabs) - 1
         nxt = None if last else filled(k + 1)
         inside = cur if last else np.concatenate([cur, nxt[:1]])
         if not inside.any():
             continue
         first_plane = z0 - 1 if k == 0 else z0  # a background plane before the first slab
-        j = np.full((z1 - first_plane + 1, region_shape[1] + 2, region_shape[2] + 2), outside_value,
+        j = np.full((z1 - first_plane + 1, inside.shape[1] + 2, inside.shape[2] + 2), outside_value,
                     dtype=np.float32)
         d = data[z0 : z1 + (0 if last else 1), ys, xs]
         p0 = z0 - first_plane
@@ -760,13 +1250,59 @@ def _mesh_product(vol: Volume, iso: float, inside_value: float, outside_value: f
         if not last:
             boundaries.append(float(z1))
         del verts
-    fg.work = bg.work = None  # free the labels (a byte per voxel) before the mesh is joined
-    del work, region_work, nxt, cur
     if not chunks:  # pragma: no cover - the product has voxels above the level
-        raise VolumeError(f"{name}: no surface found at the level {iso:g}")
-    index_vertices, faces = _weld(chunks, boundaries)
-    bounds = np.stack([lo[::-1], hi[::-1]], axis=1).astype(np.int64)
-    return index_vertices, faces, bounds, n_object, n_filled, n_support
+        raise VolumeError(f"no surface found at the level {iso:g}")
+    return _weld(chunks, boundaries)
+
+
+def _mesh_product(vol: Volume, iso: float, inside_value: float, outside_value: float, *,
+                  remove_support: bool, support_radius: float, gaps_mm: Sequence[float], name: str):
+    """Segment the product and mesh its outer surface in voxel indices.
+
+    The gap widths are tried in turn (:func:`_segment`) until the product is
+    one solid of genus 0 that encloses no other piece; the last is kept
+    otherwise. Returns ``(index_vertices (n, 3) float64 along x, y, z,
+    faces (m, 3) int64, bounds, the segmentation, the attempts)``. Every
+    whole-volume work array lives only inside this function.
+    """
+    # (z, y, x) view: slabs along the volume's last axis are contiguous in memory
+    # for volumes read from files (x varies fastest on disk).
+    data = vol.data.transpose(2, 1, 0)
+    shape = data.shape
+    spacing_zyx = vol.spacing[::-1]
+    coarse = max(1, math.ceil((data.size / _COARSE_VOXELS) ** (1.0 / 3.0)))
+    step = max(1, _SLAB_VOXELS // (shape[1] * shape[2]))
+    step = max(coarse, step - step % coarse)
+    slabs = _slab_bounds(0, shape[0], step)
+    work = np.empty(shape, dtype=np.uint8)  # each slab's labels: one byte per voxel
+    attempts = []
+    for i, gap in enumerate(gaps_mm):
+        last = i == len(gaps_mm) - 1
+        seg = _segment(data, iso, spacing_zyx, slabs, work, gap_mm=float(gap), remove_support=remove_support,
+                       support_radius=support_radius, coarse=coarse, name=name)
+        attempts.append(seg)
+        if not (seg.closed() or last):
+            continue
+        if seg.n_object < _MIN_OBJECT_VOXELS:
+            raise VolumeError(
+                f"{name}: no object: the largest region above the level {iso:g} has only {seg.n_object} voxels"
+            )
+        if np.all(seg.lo == 0) and np.all(seg.hi == np.asarray(shape)):
+            raise VolumeError(
+                f"{name}: the object above the level {iso:g} touches all six faces of the volume: there is "
+                "no background around it (is the whole volume object, or the level too low?)"
+            )
+        index_vertices, faces = _march(vol, data, iso, seg, inside_value, outside_value, step)
+        # marching cubes may join voxels that touch only along an edge, which 6-connected
+        # voxels do not: a handle the voxels' count did not see; a wider gap closes it
+        seg.mesh_genus = (2 - (len(index_vertices) - len(faces) // 2)) // 2
+        if seg.mesh_genus == 0 or last:
+            break
+    for s in attempts:
+        s.fg = None  # free the labels (a byte per voxel)
+    del work
+    bounds = np.stack([seg.lo[::-1], seg.hi[::-1]], axis=1).astype(np.int64)
+    return index_vertices, faces, bounds, seg, attempts
 
 
 def extract_surface(
@@ -779,12 +1315,13 @@ def extract_surface(
     support_radius: float = 2.0,
     name: str = "volume",
 ) -> Extraction:
-    """Extract the outer surface of the product in a CT volume.
+    """Extract the outer surface of the product in a CT or MRI volume.
 
-    See the module docstring for the method: intensity levels, the largest
-    object above the level without a support touching it and with its
-    cavities filled, marching cubes on the intensity in world coordinates,
-    then optional smoothing and decimation.
+    See the module docstring for the method: the level on the boundary
+    between air and the outermost tissue, everything the outside cannot
+    reach (gaps closed until the product is one solid of genus 0), the
+    largest piece without a support touching it, marching cubes on the
+    intensity in world coordinates, then optional smoothing and decimation.
 
     Parameters
     ----------
@@ -793,8 +1330,8 @@ def extract_surface(
         taken with 1 mm voxels at the origin. Not modified.
     level : float, optional
         Iso level in the volume's intensity units; voxels above it are
-        inside. Default: half-way between the background and product
-        intensities (:func:`intensity_levels`). For integer voxels the
+        inside. Default: on the boundary between the background and the
+        outermost tissue (:func:`intensity_levels`). For integer voxels the
         surface is meshed at ``floor(level) + 0.5``, which leaves every voxel
         on its side (a shift of at most 0.5 intensity units, about a
         thousandth of a voxel for CT contrasts) and puts no vertex on a voxel.
@@ -830,6 +1367,14 @@ def extract_surface(
     ValueError
         If an option is out of range.
 
+    Warns
+    -----
+    ExtractionWarning
+        For each of :attr:`Extraction.warnings`: gaps closed (and what was
+        filled), a genus above 0 that stays, a product touching the volume's
+        border, a size far from a fruit's, a support taking most of the
+        voxels or refused.
+
     Examples
     --------
     >>> x, y, z = np.mgrid[:40, :40, :40] - 19.5
@@ -848,9 +1393,9 @@ def extract_surface(
     if vol.data.dtype.kind in "biu":
         iso = math.floor(iso) + 0.5  # the same voxels above it; no vertex on a voxel
     inside_value, outside_value = _fill_values(levels)
-    index_vertices, faces, bounds, n_object, n_filled, n_support = _mesh_product(
+    index_vertices, faces, bounds, seg, attempts = _mesh_product(
         vol, iso, inside_value, outside_value, remove_support=remove_support,
-        support_radius=float(support_radius), name=name)
+        support_radius=float(support_radius), gaps_mm=GAPS_MM, name=name)
     n_mc = len(index_vertices)
     world = vol.origin + (index_vertices * vol.spacing) @ vol.direction.T
     del index_vertices
@@ -864,7 +1409,65 @@ def extract_surface(
         mesh = decimate(mesh, int(target_vertices))
     # marching cubes' degenerate slivers (allow_degenerate above) are harmless here
     check_closed_surface(mesh, name=name, allow_degenerate=True)
-    return Extraction(mesh, levels, bounds, n_object, n_filled, n_support, n_mc)
+    tried = tuple({"gap_mm": a.gap_mm, "genus": a.genus, "mesh_genus": a.mesh_genus, "enclosed": a.enclosed,
+                   "channel_mm": round(a.pit_mm, 2) if math.isfinite(a.pit_mm) else None,
+                   "n_filled_voxels": a.n_filled} for a in attempts)
+    ext = Extraction(mesh, levels, bounds, seg.n_object, seg.n_filled, seg.n_support, n_mc,
+                     gap_mm=seg.gap_mm, attempts=tried)
+    notes = _warnings(ext, seg, attempts, vol)
+    for note in notes:
+        warnings.warn(f"{name}: {note}", ExtractionWarning, stacklevel=2)
+    return replace(ext, warnings=tuple(notes))
+
+
+def _warnings(ext: Extraction, seg: "_Segmentation", attempts, vol: Volume) -> list[str]:
+    """What a person should look at in an extraction, one sentence each."""
+    notes = []
+    first = attempts[0]
+    if len(attempts) > 1:
+        why = []
+        if first.genus:
+            why.append(f"genus {first.genus} (tunnels or openings into the inside)")
+        if first.enclosed:
+            why.append("an open shell (a peel or wall with an opening) around another piece")
+        if not first.genus and not first.enclosed:
+            why.append(f"a narrow channel {first.pit_mm:.0f} mm deep into it" if not first.closed()
+                       else f"a handle where voxels touch along an edge (genus {first.mesh_genus} once meshed)")
+        ml = float(np.prod(vol.spacing)) / 1000.0
+        notes.append(
+            f"the surface at the level had {' and '.join(why)}; gaps up to {seg.gap_mm:g} mm wide were closed "
+            f"and {seg.n_filled:,} voxels ({seg.n_filled * ml:.1f} mL) inside filled"
+        )
+    if not seg.closed():
+        left = ([f"genus {seg.genus}"] if seg.genus else []) + (
+            ["an open shell around another piece"] if seg.enclosed else []) + (
+            [] if seg.genus or seg.enclosed else [f"a narrow channel {seg.pit_mm:.0f} mm deep into it"])
+        notes.append(f"the surface still has {' and '.join(left)} with gaps up to {seg.gap_mm:g} mm closed: "
+                     "check the level (--level)")
+    if ext.genus and seg.closed():
+        notes.append(f"the meshed surface has genus {ext.genus} where its voxels have {seg.genus}")
+    if seg.support_refused:
+        notes.append(
+            f"no support was dropped: what came apart from the product as a support was {seg.support_refused:,} "
+            f"voxels, more than {SUPPORT_REFUSE_SHARE:.0%} of it (the product itself?); check the level"
+        )
+    elif seg.n_support > SUPPORT_WARN_SHARE * (seg.n_support + seg.n_object + seg.n_filled):
+        notes.append(
+            f"the support dropped took {seg.n_support:,} voxels, most of what was above the level "
+            "(a large scanner bed, or the product?); check the picture, or use --keep-support"
+        )
+    shape = np.asarray(vol.shape)
+    lo, hi = ext.bounds[:, 0], ext.bounds[:, 1]
+    cut = [f"{'-' if side == 0 else '+'}{'xyz'[a]}" for a in range(3) for side in (0, 1)
+           if (lo[a] == 0 if side == 0 else hi[a] == shape[a])]
+    if cut:
+        notes.append(f"the product touches the volume's border ({', '.join(cut)}): it may be cut off there")
+    extent = float(np.ptp(ext.mesh.vertices, axis=0).max())
+    small, large = FRUIT_EXTENT_MM
+    if not small <= extent <= large:
+        notes.append(f"the product is {extent:.3g} mm across ({ext.volume / 1000:.3g} mL), far from a fruit's "
+                     f"{small:g}-{large:g} mm: check the voxel size and the level")
+    return notes
 
 
 # --------------------------------------------------------------------------
@@ -961,8 +1564,12 @@ def render_extraction(volume, extraction: Extraction, path, *, title: str | None
     dpi = 100.0
     fig = Figure(figsize=(width / dpi, height / dpi), dpi=dpi, facecolor="white")
     canvas = FigureCanvasAgg(fig)
+    lines = [extraction.levels.explain()
+             + (f"; gaps up to {extraction.gap_mm:g} mm closed" if extraction.gap_mm else "")]
+    lines += [f"warning: {w}" for w in extraction.warnings]
+    foot = 0.035 * len(lines)  # the level's explanation and the warnings, under the panels
     top = 0.86 if title else 0.92
-    ax = fig.add_axes((0.0, 0.02, height / width, top - 0.02))
+    ax = fig.add_axes((0.0, 0.02 + foot, height / width, top - 0.02 - foot))
     ax.imshow(surface)
     ax.set_axis_off()
     ax.set_title(f"surface: {mesh.n_vertices:,} vertices, {extraction.volume / 1000:.1f} mL", fontsize=10)
@@ -975,7 +1582,7 @@ def render_extraction(volume, extraction: Extraction, path, *, title: str | None
         k = int(np.clip(k, 0, vol.shape[axis] - 1))
         picture = np.take(vol.data, k, axis=axis).astype(np.float32)  # [a0, a1]
         left = height / width + room * (0.08 + 0.5 * i)
-        ax = fig.add_axes((left, 0.1, room * 0.4, top - 0.14))
+        ax = fig.add_axes((left, 0.1 + foot, room * 0.4, top - 0.14 - foot))
         extent = (-0.5 * s0, (picture.shape[0] - 0.5) * s0, -0.5 * s1, (picture.shape[1] - 0.5) * s1)
         ax.imshow(picture.T, cmap="gray", vmin=vmin, vmax=vmax, origin="lower", extent=extent,
                   interpolation="nearest")
@@ -989,6 +1596,8 @@ def render_extraction(volume, extraction: Extraction, path, *, title: str | None
         ax.set_title(f"slice {'xyz'[axis]} = {k} (red: the surface)", fontsize=10)
     if title:
         fig.text(0.5, 0.96, title, ha="center", va="center", fontsize=12)
+    fig.text(0.5, 0.012, "\n".join(lines), ha="center", va="bottom", fontsize=8,
+             color="#b00020" if extraction.warnings else "#333333")
     canvas.draw()
     with atomic_path(target, VolumeError) as tmp_path:
         fig.savefig(tmp_path, format="png", dpi=dpi, facecolor="white")
@@ -1084,6 +1693,8 @@ class ExtractResult:
     level, background, foreground : float
         Iso level and intensities (:class:`IntensityLevels`).
     n_filled_voxels, n_support_voxels : int
+    warnings : tuple of str
+        What a person should look at (:attr:`Extraction.warnings`).
     """
 
     name: str
@@ -1101,6 +1712,7 @@ class ExtractResult:
     foreground: float = float("nan")
     n_filled_voxels: int = 0
     n_support_voxels: int = 0
+    warnings: tuple = ()
 
 
 def _source_digest(path: Path) -> str:
@@ -1122,7 +1734,14 @@ def _source_digest(path: Path) -> str:
 
 
 def _settings(options: dict) -> str:
-    return hashlib.sha256(json.dumps({"version": __version__, **options}, sort_keys=True).encode()).hexdigest()
+    """A digest of the options, hortishape's version and the method's constants: a change of any
+    re-extracts."""
+    constants = {name: globals()[name] for name in sorted(globals()) if name.startswith(_CONSTANT_PREFIXES)}
+    return hashlib.sha256(json.dumps({"version": __version__, "constants": constants, **options},
+                                     sort_keys=True, default=list).encode()).hexdigest()
+
+
+_CONSTANT_PREFIXES = ("GAPS_", "ENCLOSED_", "SUPPORT_", "OUTER_", "PIT_")
 
 
 def extract_file(source, out_dir, *, level: float | None = None, smoothing: int = 10,
@@ -1181,13 +1800,17 @@ def extract_file(source, out_dir, *, level: float | None = None, smoothing: int 
         out.mkdir(parents=True, exist_ok=True)
         start = time.perf_counter()
         vol = read_volume(source, spacing=spacing)
-        ext = extract_surface(vol, level=level, smoothing=smoothing, target_vertices=target_vertices,
-                              remove_support=remove_support, support_radius=support_radius, name=str(source))
+        with warnings.catch_warnings():
+            # said in the log and the result instead (batches run in other processes)
+            warnings.simplefilter("ignore", ExtractionWarning)
+            ext = extract_surface(vol, level=level, smoothing=smoothing, target_vertices=target_vertices,
+                                  remove_support=remove_support, support_radius=support_radius,
+                                  name=str(source))
         units = {**_check_extent(ext.mesh.vertices, vol.spacing, source).as_log(), "spacing_mm": vol.spacing.tolist()}
         seconds = time.perf_counter() - start
         write_mesh(ply, ext.mesh)
         if picture:
-            render_extraction(vol, ext, png, title=f"{source.name}: level {ext.levels.level:g}")
+            render_extraction(vol, ext, png, title=source.name)
         del vol
         log = {
             "source": str(source),
@@ -1197,6 +1820,11 @@ def extract_file(source, out_dir, *, level: float | None = None, smoothing: int 
             "units": units,
             "seconds": seconds,
             "levels": asdict(ext.levels),
+            "level_choice": ext.levels.explain(),
+            "gap_mm": ext.gap_mm,
+            "genus": ext.genus,
+            "attempts": list(ext.attempts),
+            "warnings": list(ext.warnings),
             "bounds_index_xyz": ext.bounds.tolist(),
             "n_vertices": ext.mesh.n_vertices,
             "n_marching_cubes_vertices": ext.n_marching_cubes_vertices,
@@ -1253,6 +1881,7 @@ def _result(stem: str, source: Path, log: dict, ply: Path, png: Path | None, *, 
         n_vertices=int(log["n_vertices"]), volume_mm3=float(log["volume_mm3"]), level=float(lv["level"]),
         background=float(lv["background"]), foreground=float(lv["foreground"]),
         n_filled_voxels=int(log["n_filled_voxels"]), n_support_voxels=int(log["n_support_voxels"]),
+        warnings=tuple(log.get("warnings", ())),
     )
 
 
