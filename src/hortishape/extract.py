@@ -112,6 +112,8 @@ _SLAB_VOXELS = 4_000_000
 # support is separated from the product.
 _HISTOGRAM_SAMPLES = 4_000_000
 _COARSE_VOXELS = 4_000_000
+# Voxels of the coarse grid on which a channel's depth is measured (mm-scale).
+_PIT_VOXELS = 1_000_000
 # A product smaller than this many voxels is taken as no product at all.
 _MIN_OBJECT_VOXELS = 27
 
@@ -511,6 +513,16 @@ def _edge_level(rays, provisional: float, background: float, outer: float, magni
 # --------------------------------------------------------------------------
 
 
+def _grow_box(lo: np.ndarray, hi: np.ndarray, mask: np.ndarray, z_shift: int) -> None:
+    """Grow the box ``[lo, hi)`` (z, y, x, in place) to hold ``mask``'s voxels, its planes from ``z_shift``."""
+    for axis, others in ((0, (1, 2)), (1, (0, 2)), (2, (0, 1))):
+        hit = np.flatnonzero(mask.any(axis=others))
+        if len(hit):
+            shift = z_shift if axis == 0 else 0
+            lo[axis] = min(lo[axis], hit[0] + shift)
+            hi[axis] = max(hi[axis], hit[-1] + 1 + shift)
+
+
 def _slab_bounds(lo: int, hi: int, step: int) -> list[tuple[int, int]]:
     """Split ``[lo, hi)`` at the multiples of ``step``."""
     out = []
@@ -533,11 +545,10 @@ class _Components:
     they are computed again when needed (labelling is deterministic).
 
     Attributes per component (index ``c``): ``size[c]`` voxels and
-    ``border[c]``, whether it touches the region's border; ``with_boxes``,
-    also its bounding box (:meth:`bounds`, :meth:`boxes`).
+    ``border[c]``, whether it touches the region's border.
     """
 
-    def __init__(self, get_mask, slabs, work, *, with_boxes: bool = False) -> None:
+    def __init__(self, get_mask, slabs, work) -> None:
         from scipy import ndimage
         from scipy.sparse import coo_matrix
         from scipy.sparse.csgraph import connected_components
@@ -548,7 +559,7 @@ class _Components:
         self.z_lo = slabs[0][0]
         self._structure = ndimage.generate_binary_structure(3, 1)
         offsets, counts, stored = [], [], []
-        sizes, borders, pairs, boxes = [], [], [], []
+        sizes, borders, pairs = [], [], []
         total = 0
         previous = None
         for k, (z0, z1) in enumerate(slabs):
@@ -557,11 +568,6 @@ class _Components:
             counts.append(n)
             if n:
                 sizes.append(np.bincount(lab.ravel(), minlength=n + 1)[1:])
-                if with_boxes:
-                    found = ndimage.find_objects(lab)  # every label is present: none is None
-                    box = np.array([[f.start for f in sl] + [f.stop for f in sl] for sl in found], dtype=np.int64)
-                    box[:, [0, 3]] += z0 - self.z_lo
-                    boxes.append(box)
                 touch = np.zeros(n + 1, dtype=bool)
                 for face in (lab[:, 0, :], lab[:, -1, :], lab[:, :, 0], lab[:, :, -1]):
                     touch[face.ravel()] = True
@@ -591,7 +597,6 @@ class _Components:
             self.root = np.zeros(1, dtype=np.int64)
             self.size = np.zeros(0, dtype=np.int64)
             self.border = np.zeros(0, dtype=bool)
-            self.lo = self.hi = np.zeros((0, 3), dtype=np.int64)
             return
         edges = np.concatenate(pairs) - 1 if pairs else np.zeros((0, 2), dtype=np.int64)
         graph = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(total, total))
@@ -599,21 +604,14 @@ class _Components:
         self.root = np.concatenate([[-1], comp]).astype(np.int64)  # global label -> component
         self.size = np.bincount(comp, weights=np.concatenate(sizes), minlength=n_comp).astype(np.int64)
         self.border = np.bincount(comp, weights=np.concatenate(borders), minlength=n_comp) > 0
-        if with_boxes:
-            # each component's bounding box (z, y, x; stop exclusive), from its labels' boxes
-            box = np.concatenate(boxes)
-            self.lo = np.full((n_comp, 3), np.iinfo(np.int64).max)
-            self.hi = np.zeros((n_comp, 3), dtype=np.int64)
-            np.minimum.at(self.lo, comp, box[:, :3])
-            np.maximum.at(self.hi, comp, box[:, 3:])
 
     def bounds(self, chosen: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Bounding box ``(lo, hi)`` (z, y, x; ``hi`` exclusive) of the ``chosen`` components."""
-        return self.lo[chosen].min(axis=0), self.hi[chosen].max(axis=0)
-
-    def boxes(self, components) -> list[tuple[np.ndarray, np.ndarray]]:
-        """Bounding boxes ``(lo, hi)`` (z, y, x; ``hi`` exclusive) of each of ``components``."""
-        return [(self.lo[c], self.hi[c]) for c in np.asarray(components, dtype=np.int64)]
+        lo = np.array([np.iinfo(np.int64).max] * 3)
+        hi = np.zeros(3, dtype=np.int64)
+        for k, (z0, _) in enumerate(self.slabs):
+            _grow_box(lo, hi, self.select(k, chosen), z0 - self.z_lo)
+        return lo, hi
 
     def labels(self, k: int) -> np.ndarray:
         """The local labels of slab ``k`` (stored, or computed again)."""
@@ -1065,7 +1063,7 @@ def _segment(data, iso: float, spacing_zyx, slabs, work, *, gap_mm: float, remov
     def solid(z0: int, z1: int) -> np.ndarray:
         return ~np.unpackbits(outside[slab_of[z0]], axis=-1, count=shape[2]).view(bool)
 
-    fg = _Components(solid, slabs, work, with_boxes=True)
+    fg = _Components(solid, slabs, work)
     if fg.n_labels == 0:
         raise VolumeError(f"{name}: no voxel is above the level {iso:g}; no object")
     product = np.zeros(len(fg.size), dtype=bool)
@@ -1080,7 +1078,7 @@ def _segment(data, iso: float, spacing_zyx, slabs, work, *, gap_mm: float, remov
             def solid_not_support(z0: int, z1: int) -> np.ndarray:
                 return solid(z0, z1) & ~_upsample(support, z0, z1, shape[1:], coarse)
 
-            fg = _Components(solid_not_support, slabs, work, with_boxes=True)
+            fg = _Components(solid_not_support, slabs, work)
             free = np.flatnonzero(~fg.border)
             pool = free if len(free) else np.arange(len(fg.size))
             kept = np.zeros(len(fg.size), dtype=bool)
@@ -1089,24 +1087,16 @@ def _segment(data, iso: float, spacing_zyx, slabs, work, *, gap_mm: float, remov
             if n_support > SUPPORT_REFUSE_SHARE * before:
                 # not a support: the product itself, but for a fragment; keep it whole
                 refused, n_support = n_support, 0
-                fg = _Components(solid, slabs, work, with_boxes=True)  # again: `work` was overwritten
+                fg = _Components(solid, slabs, work)  # again: the labels in `work` were overwritten
                 product = np.zeros(len(fg.size), dtype=bool)
                 product[int(np.argmax(fg.size))] = True
             else:
                 product = kept
     n_solid = int(fg.size[product][0])
-    # another solid piece of some size inside the product's box, or around it: one
-    # of them is an open shell around the other (a peel whose opening the box
-    # passed through, over the flesh)
-    others = np.flatnonzero(~product & (fg.size >= ENCLOSED_MIN_SHARE * n_solid))
-    others = others[np.argsort(-fg.size[others])][:ENCLOSED_CHECKED]
-    boxes = fg.boxes(np.r_[np.flatnonzero(product), others])
-    lo, hi = boxes[0]
-    enclosed = sum(bool((np.all(c_lo >= lo) and np.all(c_hi <= hi)) or (np.all(c_lo <= lo) and np.all(c_hi >= hi)))
-                   for c_lo, c_hi in boxes[1:])
-    # counts and the Euler number of the product, slab by slab (with the next slab's first plane)
+    # counts, box and Euler number of the product, slab by slab (with the next slab's first plane)
     n_object = 0
     euler = 0
+    lo, hi = np.array([np.iinfo(np.int64).max] * 3), np.zeros(3, dtype=np.int64)
     nxt = fg.select(0, product)
     for k, (z0, z1) in enumerate(slabs):
         cur = nxt
@@ -1115,6 +1105,15 @@ def _segment(data, iso: float, spacing_zyx, slabs, work, *, gap_mm: float, remov
             n_object += int((cur & (data[z0:z1] > iso)).sum())
             planes = cur if nxt is None else np.concatenate([cur, nxt[:1]])
             euler += _euler_number(planes, len(cur))
+            _grow_box(lo, hi, cur, z0)
+    # another solid piece of some size inside the product's box, or around it: one
+    # of them is an open shell around the other (a peel whose opening the box
+    # passed through, over the flesh)
+    others = np.flatnonzero(~product & (fg.size >= ENCLOSED_MIN_SHARE * n_solid))
+    enclosed = 0
+    for c in others[np.argsort(-fg.size[others])][:ENCLOSED_CHECKED]:
+        c_lo, c_hi = fg.bounds(np.arange(len(fg.size)) == c)
+        enclosed += bool((np.all(c_lo >= lo) and np.all(c_hi <= hi)) or (np.all(c_lo <= lo) and np.all(c_hi >= hi)))
     genus = 1 - euler
     # only a product closed otherwise is looked at for a channel (it takes a while)
     pit = (_pit_depth(lambda k: ~fg.select(k, product), slabs, shape, spacing_zyx, lo, hi)
@@ -1136,27 +1135,24 @@ def _pit_depth(elsewhere, slabs, shape, spacing_zyx, lo, hi) -> float:
     """
     from scipy import ndimage
 
-    c = max(1, math.ceil((np.prod(shape) / _COARSE_VOXELS) ** (1.0 / 3.0)))
+    c = max(1, math.ceil((np.prod(shape) / _PIT_VOXELS) ** (1.0 / 3.0)))
     nz, ny, nx = shape
     cz, cy, cx = -(-nz // c), -(-ny // c), -(-nx // c)
     some = np.zeros((cz, cy, cx), dtype=bool)
-    every = np.zeros((cz, cy, cx), dtype=bool)
+    every = np.ones((cz, cy, cx), dtype=bool)
     for k, (z0, z1) in enumerate(slabs):
         m = elsewhere(k)
-        pad = ((0, (-m.shape[0]) % c), (0, (-ny) % c), (0, (-nx) % c))
+        pad = ((0, 0), (0, (-ny) % c), (0, (-nx) % c))
         if any(p[1] for p in pad):
             m = np.pad(m, pad, constant_values=True)  # beyond the volume is air
-        # one axis at a time: the first reduction reads the slab once, the others far less
-        a = m.reshape(m.shape[0] // c, c, m.shape[1], m.shape[2])
-        any_, all_ = a.any(axis=1), a.all(axis=1)
-        for axis in (1, 2):
-            new_shape = list(any_.shape)
-            new_shape[axis : axis + 1] = [new_shape[axis] // c, c]
-            any_ = any_.reshape(new_shape).any(axis=axis + 1)
-            all_ = all_.reshape(new_shape).all(axis=axis + 1)
-        zs = slice(z0 // c, z0 // c + any_.shape[0])
-        some[zs] |= any_
-        every[zs] = all_  # slabs start at multiples of the coarse factor
+        # across each plane first (the one full read), then the planes block by block
+        a = m.reshape(m.shape[0], m.shape[1] // c, c, m.shape[2] // c, c)
+        any_, all_ = a.any(axis=(2, 4)), a.all(axis=(2, 4))
+        starts = np.r_[0, np.arange(-(-z0 // c) * c, z1, c) - z0]
+        starts = np.unique(starts[starts < z1 - z0])
+        block = (z0 + starts) // c
+        some[block] |= np.logical_or.reduceat(any_, starts, axis=0)
+        every[block] &= np.logical_and.reduceat(all_, starts, axis=0)
     sampling = np.asarray(spacing_zyx, dtype=np.float64) * c
     extent = float(np.min((np.asarray(hi) - np.asarray(lo)) * np.asarray(spacing_zyx)))
     width = min(PIT_BOX_MM, PIT_BOX_SHARE * extent)
