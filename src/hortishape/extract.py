@@ -157,6 +157,9 @@ OUTER_ANGLE = 20.0
 OUTER_BEFORE_MM = 3.0
 OUTER_AFTER_MM = 6.0
 OUTER_BIN_MM = 0.05
+#: The fitted level is kept under this share of the way from the background
+#: to the outer tissue's peak.
+OUTER_MAX_SHARE = 0.75
 #: Fewer rays than this reaching the product: the histogram's peaks are kept.
 OUTER_MIN_RAYS = 50
 #: A surface smaller or larger across than this (mm) is warned about (the
@@ -331,8 +334,13 @@ def intensity_levels(volume, *, level: float | None = None, name: str = "volume"
         # magnitude images (MRI) have no values below 0 and their background near 0
         magnitude = vmin >= 0 and bg < 0.1 * (fg - bg)
         fitted = _edge_level(rays, edge, bg, outer, magnitude)
-        return IntensityLevels(background=bg, foreground=fg, threshold=threshold,
-                               level=fitted if math.isfinite(fitted) else edge, outer=outer, method="outer")
+        # a blurred edge's middle lies below OUTER_MAX_SHARE of its peak when the peel
+        # is at least twice as thick as the blur: a fit above that is one a coarse
+        # profile could not fix (a thin peel's brightness and thickness trade off)
+        top = bg + OUTER_MAX_SHARE * (outer - bg)
+        level = min(fitted, top) if math.isfinite(fitted) else edge
+        return IntensityLevels(background=bg, foreground=fg, threshold=threshold, level=level, outer=outer,
+                               method="outer")
     return IntensityLevels(background=bg, foreground=fg, threshold=threshold, level=0.5 * (bg + fg),
                            outer=outer, method="peaks")
 
