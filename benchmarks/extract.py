@@ -163,27 +163,30 @@ def ellipsoid_volume(size: int, axes, wall: float, *, sigma: float = 0.7, noise:
     return data
 
 
-def large(work: Path, size: int) -> dict:
+def extract_in_child(stem: Path, data: np.ndarray, spacing: float):
+    """Write ``data`` as ``<stem>.mha`` (uncompressed) and extract it in a fresh process into
+    ``<stem>.ply``: that process's report (times, peak memory) and the surface."""
     from hortishape.io import Volume, read_mesh, write_volume
 
+    path = write_volume(stem.with_suffix(".mha"), Volume(data, spacing=spacing), compress=False)
+    out = stem.with_suffix(".ply")
+    proc = subprocess.run([sys.executable, "-c", _CHILD, str(path), str(out)], capture_output=True, text=True)
+    if proc.returncode:
+        print(proc.stderr)
+        raise SystemExit("the extraction process failed")
+    return json.loads(proc.stdout.strip().splitlines()[-1]), read_mesh(out)
+
+
+def large(work: Path, size: int) -> dict:
     axes = np.array([0.45, 0.39, 0.48]) * size
     wall = 0.05 * size
     spacing = 0.2
     t0 = time.perf_counter()
     data = ellipsoid_volume(size, axes, wall)
-    path = write_volume(work / f"ellipsoid_{size}.mha", Volume(data, spacing=spacing), compress=False)
-    t_make = time.perf_counter() - t0
-    nbytes = data.nbytes
-    del data
-    print(f"\n{size}^3 int16 hollow ellipsoid ({nbytes / 2**20:.0f} MB, semi-axes "
-          f"{'/'.join(f'{v:.0f}' for v in axes)} voxels, wall {wall:.0f} voxels) made and written in {t_make:.1f} s")
-    out = work / f"ellipsoid_{size}.ply"
-    proc = subprocess.run([sys.executable, "-c", _CHILD, str(path), str(out)], capture_output=True, text=True)
-    if proc.returncode:
-        print(proc.stderr)
-        raise SystemExit("the extraction process failed")
-    r = json.loads(proc.stdout.strip().splitlines()[-1])
-    mesh = read_mesh(out)
+    print(f"\n{size}^3 int16 hollow ellipsoid ({data.nbytes / 2**20:.0f} MB, semi-axes "
+          f"{'/'.join(f'{v:.0f}' for v in axes)} voxels, wall {wall:.0f} voxels) made in "
+          f"{time.perf_counter() - t0:.1f} s")
+    r, mesh = extract_in_child(work / f"ellipsoid_{size}", data, spacing)
     # first-order distance to the ellipsoid, in voxels (origin 0, spacing 0.2 mm)
     p = mesh.vertices / spacing - (size - 1) / 2.0
     f = ((p / axes) ** 2).sum(axis=1) - 1.0
@@ -240,25 +243,15 @@ def layered_volume(size: int, radius: float, *, seed: int = 0):
 
 
 def large_mri(work: Path, size: int) -> dict:
-    from hortishape.io import Volume, read_mesh, write_volume
     from hortishape.surface import signed_volume
 
     radius = 0.45 * size
     spacing = 0.2
     t0 = time.perf_counter()
     data = layered_volume(size, radius)
-    path = write_volume(work / f"layered_{size}.mha", Volume(data, spacing=spacing), compress=False)
-    nbytes = data.nbytes
-    del data
-    print(f"\n{size}^3 uint8 MRI-like layered ball ({nbytes / 2**20:.0f} MB, radius {radius:.0f} voxels, peel 3, "
-          f"rind 8, 10 segments, core open through a channel) made and written in {time.perf_counter() - t0:.1f} s")
-    out = work / f"layered_{size}.ply"
-    proc = subprocess.run([sys.executable, "-c", _CHILD, str(path), str(out)], capture_output=True, text=True)
-    if proc.returncode:
-        print(proc.stderr)
-        raise SystemExit("the extraction process failed")
-    r = json.loads(proc.stdout.strip().splitlines()[-1])
-    mesh = read_mesh(out)
+    print(f"\n{size}^3 uint8 MRI-like layered ball ({data.nbytes / 2**20:.0f} MB, radius {radius:.0f} voxels, "
+          f"peel 3, rind 8, 10 segments, core open through a channel) made in {time.perf_counter() - t0:.1f} s")
+    r, mesh = extract_in_child(work / f"layered_{size}", data, spacing)
     d = np.abs(np.linalg.norm(mesh.vertices / spacing - (size - 1) / 2.0, axis=1) - radius)
     exact = 4.0 / 3.0 * math.pi * (radius * spacing) ** 3
     vol_err = 100.0 * (signed_volume(mesh.vertices, mesh.faces) / exact - 1.0)
