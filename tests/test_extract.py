@@ -551,3 +551,18 @@ def test_intensity_levels_explain_themselves():
     assert lv.method == "outer" and "outer edge of the outermost tissue" in lv.explain()
     assert "given" in intensity_levels(data, level=20.0).explain()
     assert "half-way between the background" in intensity_levels(ct(sphere_distance(30, (15, 15, 15), 8))).explain()
+
+
+def test_a_narrow_channel_to_the_core_is_closed_over():
+    # CT-like: a ball 50 mm across with an air core, open to the outside through a channel
+    # 3 mm wide: genus 0 at every gap width, but the outside reaches deep into it
+    n, c = 64, 31.5
+    x, y, z = grid(n) - c
+    ball = np.sqrt(x**2 + y**2 + z**2) - 25.0
+    core = 6.0 - np.sqrt(x**2 + y**2 + z**2)
+    channel = np.where(z > 0, 1.5 - np.hypot(x, y), -np.inf)
+    with pytest.warns(ExtractionWarning, match="narrow channel"):
+        ext = extract_surface(ct(np.maximum(ball, np.maximum(core, channel))))
+    assert ext.genus == 0 and ext.gap_mm >= 2.0
+    assert ext.attempts[0]["genus"] == 0 and ext.attempts[0]["channel_mm"] > 10.0
+    assert ext.volume == pytest.approx(4 / 3 * np.pi * 25.0**3, rel=0.01)  # the core filled
