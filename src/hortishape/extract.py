@@ -891,8 +891,7 @@ class Extraction:
     @property
     def genus(self) -> int:
         """Genus of the surface (0: a sphere's topology), from its Euler number."""
-        v, f = self.mesh.n_vertices, len(self.mesh.faces)
-        return (2 - (v - f // 2)) // 2  # a closed triangle surface has 3f/2 edges
+        return _surface_genus(self.mesh.n_vertices, len(self.mesh.faces))
 
     @property
     def volume(self) -> float:
@@ -900,6 +899,11 @@ class Extraction:
         from .surface import signed_volume
 
         return abs(signed_volume(self.mesh.vertices, self.mesh.faces))
+
+
+def _surface_genus(n_vertices: int, n_faces: int) -> int:
+    """Genus of one closed triangle surface, from its Euler number (it has 3 f / 2 edges)."""
+    return (2 - (n_vertices - n_faces // 2)) // 2
 
 
 def _check_options(smoothing, target_vertices, support_radius) -> None:
@@ -1027,7 +1031,6 @@ class _Segmentation:
     """The product of one gap width: what marching cubes needs, and what the checks found."""
 
     gap_mm: float
-    box: tuple
     fg: "_Components"
     product: np.ndarray
     slabs: list
@@ -1126,7 +1129,7 @@ def _segment(data, iso: float, spacing_zyx, slabs, work, *, gap_mm: float, remov
     # only a product closed otherwise is looked at for a channel (it takes a while)
     pit = (_pit_depth(lambda k: ~fg.select(k, product), slabs, shape, spacing_zyx, lo, hi)
            if genus == 0 and not enclosed else float("nan"))
-    return _Segmentation(gap_mm, box, fg, product, slabs, lo, hi, n_object, n_solid - n_object,
+    return _Segmentation(gap_mm, fg, product, slabs, lo, hi, n_object, n_solid - n_object,
                          n_support, refused, genus, enclosed, pit, np.asarray(spacing_zyx, dtype=float))
 
 
@@ -1299,7 +1302,7 @@ def _mesh_product(vol: Volume, iso: float, inside_value: float, outside_value: f
         index_vertices, faces = _march(vol, data, iso, seg, inside_value, outside_value, step)
         # marching cubes may join voxels that touch only along an edge, which 6-connected
         # voxels do not: a handle the voxels' count did not see; a wider gap closes it
-        seg.mesh_genus = (2 - (len(index_vertices) - len(faces) // 2)) // 2
+        seg.mesh_genus = _surface_genus(len(index_vertices), len(faces))
         if seg.mesh_genus == 0 or last:
             break
     for s in attempts:
