@@ -45,6 +45,11 @@ class ModelDir:
         orientation check's second tries of suspect scans.
     evaluation : Path
         ``evaluation/``: what ``hortishape evaluate`` writes.
+    error_map, metrics, viewer : Path
+        ``evaluation/error_map.ply`` (the geometric error per vertex of the
+        mean), ``evaluation/metrics.json`` (every figure, the landmarks on
+        the mean among them) and ``evaluation/viewer.html`` (the model in a
+        browser, :mod:`hortishape.view`).
 
     Examples
     --------
@@ -99,6 +104,18 @@ class ModelDir:
     @property
     def evaluation(self) -> Path:
         return self.root / "evaluation"
+
+    @property
+    def error_map(self) -> Path:
+        return self.evaluation / "error_map.ply"
+
+    @property
+    def metrics(self) -> Path:
+        return self.evaluation / "metrics.json"
+
+    @property
+    def viewer(self) -> Path:
+        return self.evaluation / "viewer.html"
 
     def registered_mesh(self, name: str) -> Path:
         """The registered surface of instance ``name`` (a scan's file stem)."""

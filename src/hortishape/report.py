@@ -768,7 +768,7 @@ def write_report(ev: "Evaluation", path: str | os.PathLike) -> Path:
     add('<nav><a href="#summary">Summary</a><a href="#dimensions">Dimensions</a><a href="#compactness">Compactness</a>'
         '<a href="#generalization">Generalization</a><a href="#specificity">Specificity</a>'
         '<a href="#table">Table per m</a><a href="#error-map">Error map</a><a href="#landmarks">Landmarks</a>'
-        '<a href="#modes">Modes</a><a href="#samples">Samples</a><a href="#files">Files</a></nav>')
+        '<a href="#modes">Modes and viewer</a><a href="#samples">Samples</a><a href="#files">Files</a></nav>')
     if ev.notes:
         add('<div class="note"><b>Notes</b><ul>' + "".join(f"<li>{esc(t)}</li>" for t in ev.notes) + "</ul></div>")
 
@@ -901,6 +901,13 @@ def write_report(ev: "Evaluation", path: str | os.PathLike) -> Path:
     add('<h2 id="modes">Shape modes (Fig. 7)</h2>' + _img(files.get("modes_png")))
     add('<p class="small">The mean and the mean moved \u00b13 standard deviations along each of the first modes, '
         "front and top view, all at the same scale.</p>")
+    if files.get("viewer"):
+        add(f'<p><a href="{esc(Path(files["viewer"]).name)}"><b>Open the model in the browser</b></a>: the mean in 3D '
+            "with a slider per mode acting together, random samples, colouring by the displacement from the mean, "
+            "the model's SD or the error map. One self-contained page (it needs no network), to send to anyone; "
+            "its address keeps the sliders (<code>viewer.html#b=0,3</code> is mode 2 at +3 SD).</p>")
+    elif ev.model_dir is not None:
+        add('<p class="small">No browser viewer: it needs plotly (<code>pip install "hortishape[view]"</code>).</p>')
     add('<h2 id="samples">Random samples (Fig. 8)</h2>' + _img(files.get("samples_png")))
     add('<p class="small">New shapes drawn from the first five modes (coefficients standard normal, truncated at '
         "\u00b13 SD).</p>")
@@ -1035,6 +1042,24 @@ def metrics_csv(ev: Evaluation) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _write_viewer(model, path: Path, ev: Evaluation) -> dict:
+    """The evaluation's viewer page, or nothing when plotly, which draws it, is not installed."""
+    from importlib.util import find_spec
+
+    from .view import write_viewer
+
+    if find_spec("plotly") is None:
+        return {}
+    geo = ev.geometric_error
+    marks = None if ev.landmarks is None else dict(zip(ev.landmarks.names, ev.landmarks.on_mean))
+    marks = {k: p for k, p in (marks or {}).items() if np.all(np.isfinite(p))} or None
+    title = f"Shape model: {Path(ev.model_dir).name}" if ev.model_dir is not None else "Shape model"
+    provenance = {"model file": str(ModelDir(ev.model_dir).model)} if ev.model_dir is not None else None
+    page = write_viewer(model, path, error_map=None if geo is None else geo.per_vertex_mm, landmarks=marks,
+                        title=title, provenance=provenance)
+    return {"viewer": page.path}
+
+
 def write_evaluation(
     ev: Evaluation,
     model,
@@ -1044,6 +1069,7 @@ def write_evaluation(
     aligned: Mapping | None = None,
     random_state: RandomState = 0,
     start: float | None = None,
+    viewer: bool = True,
 ) -> Evaluation:
     """Write an evaluation: metrics, error map, plots, pictures and the HTML report.
 
@@ -1056,7 +1082,10 @@ def write_evaluation(
       with a colour bar), when there is a geometric error;
     - ``compactness.png``, ``generalization.png``, ``specificity.png``,
       ``landmarks.png`` (with landmarks), ``modes.png``, ``samples.png``;
-    - ``report.html``: all of it on one page, pictures embedded.
+    - ``viewer.html``: the model in a browser, with the error map and the
+      landmarks (:func:`hortishape.view.write_viewer`; with ``viewer`` and
+      plotly installed);
+    - ``report.html``: all of it on one page, pictures embedded, linking to the viewer.
 
     Parameters
     ----------
@@ -1075,6 +1104,8 @@ def write_evaluation(
         For the random samples pictured.
     start : float, optional
         ``time.perf_counter()`` when the evaluation began (for ``seconds``).
+    viewer : bool, default: True
+        Write ``viewer.html``.
 
     Returns
     -------
@@ -1112,6 +1143,8 @@ def write_evaluation(
     n_modes = min(3, model.n_components_)
     files["modes_png"] = render_modes(model, out / "modes.png", n_modes=n_modes)
     files["samples_png"] = render_samples(model, out / "samples.png", random_state=random_state)
+    if viewer and model.faces_ is not None:
+        files.update(_write_viewer(model, out / "viewer.html", ev))
     if ev.uncertain_orientation:
         if aligned is None:
             aligned = {n: read_mesh(ModelDir(ev.model_dir).aligned_mesh(n)).vertices for n, _ in ev.uncertain_orientation}
@@ -1126,7 +1159,8 @@ def write_evaluation(
     files["metrics_csv"] = atomic_text(out / "metrics.csv", metrics_csv(ev), HortishapeError)
     files["report"] = write_report(ev, out / "report.html")
     # files an earlier evaluation wrote that this one did not (no scans, no landmarks now)
-    for stale in ("error_map.ply", "error_map.vtk", "error_map.png", "landmarks.png", "uncertain_orientation.png"):
+    for stale in ("error_map.ply", "error_map.vtk", "error_map.png", "landmarks.png", "uncertain_orientation.png",
+                  "viewer.html"):
         if (out / stale) not in files.values():
             (out / stale).unlink(missing_ok=True)
     return replace(ev, files=dict(files))

@@ -35,7 +35,7 @@ import numpy as np
 from .errors import HortishapeError, MeshError
 from .mesh import check_mesh
 
-__all__ = ["FORMATS", "H5Tree", "ModelData", "model_format", "read_model", "read_tree", "write_model", "write_tree"]
+__all__ = ["FORMATS", "H5Tree", "ModelData", "model_format", "model_provenance", "read_model", "read_tree", "write_model", "write_tree"]
 
 #: The forms a model file can be written in: ``"hdf5"`` (Statismo v0.9) and ``"json"`` (HDF5-JSON).
 FORMATS = ("hdf5", "json")
@@ -542,6 +542,28 @@ def model_tree(data: ModelData, *, build_time: str | None = None) -> H5Tree:
     if data.n_samples is not None:
         t.attrs[h]["n_samples"] = np.int64(data.n_samples)
     return t
+
+
+def model_provenance(path: str | os.PathLike) -> dict:
+    """Who wrote a model file and when, as far as the file says: ``{"written by": ..., "build time": ...}``.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from hortishape.model import ShapeModel
+    >>> path = ShapeModel().fit(np.random.default_rng(0).normal(size=(4, 6, 3))).save(tempfile.mkdtemp() + "/m.h5")
+    >>> model_provenance(path)["written by"].startswith("hortishape")
+    True
+    """
+    tree = read_tree(path)
+    out = {}
+    if "/hortishape" in tree.groups:
+        out["written by"] = f"hortishape {tree.string('/hortishape', 'hortishape_version', '?')}"
+    elif "/modelinfo/modelBuilder-0/builderName" in tree.datasets:
+        out["written by"] = str(tree.datasets["/modelinfo/modelBuilder-0/builderName"])
+    if "/modelinfo/build-time" in tree.datasets:
+        out["build time"] = str(tree.datasets["/modelinfo/build-time"])
+    return out
 
 
 def read_model(path: str | os.PathLike) -> ModelData:
