@@ -14,6 +14,7 @@ from hortishape.io import read_mesh, read_mesh_data, write_mesh
 from hortishape.mesh import Mesh
 from hortishape.model import ShapeModel
 from hortishape.procrustes import generalized_procrustes
+from hortishape.report import write_evaluation
 from hortishape.surface import barycentric_interpolate, remesh
 
 N = 5
@@ -111,7 +112,6 @@ def test_measures_and_their_files(built, evaluated):
 
 def test_shapes_in_memory_give_the_directory_figures_and_write_only_through_report(built, evaluated, tmp_path):
     from hortishape.evaluate import evaluate_shapes
-    from hortishape.report import write_evaluation
 
     out, scans, registered, faces = built
     model = ShapeModel.load(out / "model.h5")
@@ -133,12 +133,28 @@ def test_shapes_in_memory_give_the_directory_figures_and_write_only_through_repo
         evaluate_shapes(model, registered[:, :10], aligned, faces, names=evaluated.names)
 
 
+def test_without_plotly_the_report_says_how_to_get_the_viewer(evaluated, tmp_path, monkeypatch):
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "plotly" else real(name, *a))
+    model = ShapeModel.load(evaluated.model_dir / "model.h5")
+    written = write_evaluation(evaluated, model, model.faces_, tmp_path / "evaluation")
+    assert "viewer" not in written.files and not (tmp_path / "evaluation" / "viewer.html").exists()
+    assert 'pip install "hortishape[view]"' in written.files["report"].read_text()
+
+
 def test_report_is_one_self_contained_page(evaluated):
     html = evaluated.files["report"].read_text()
     assert html.startswith("<!DOCTYPE html>") and html.rstrip().endswith("</html>")
     assert "http://" not in html and "https://" not in html and "<script" not in html
     srcs = html.count('src="')
     assert srcs == html.count('src="data:image/png;base64,') == 7  # every picture embedded
+    # the model in a browser, beside it, with the error map and the landmarks
+    viewer = evaluated.files["viewer"]
+    assert viewer.name == "viewer.html" and 'href="viewer.html"' in html
+    page = viewer.read_text(encoding="utf-8")
+    assert '"error":{"dtype":"float32"' in page and "stalk_tip" in page
     for words in ("Compactness (Fig. 10)", "Generalization (Fig. 11)", "Specificity (Fig. 12)", "eq. 15",
                   "Geometric error (Fig. 6, Table 2)", "Landmarks (Table 3)", "Population dimensions (Table 1)",
                   "per vertex (mm)", "stalk_tip"):
