@@ -13,7 +13,8 @@ and prints:
 - the largest distance between the vertices the page draws and the model's
   own instance, at 3 SD on every embedded mode.
 
-The three screenshots are written beside the page (``--out``).
+The three screenshots are written beside the page (``--out``), and one of the
+whole page at ``#b=2,0,-1.5&c=displacement`` (``page.png``, the README's picture).
 
 Run::
 
@@ -110,6 +111,12 @@ def main(argv=None) -> int:
                 print(f"    vertices drawn vs the model's instance at +3 SD on {len(b)} modes: max "
                       f"{np.linalg.norm(got - want, axis=1).max():.4f} mm (bound {page_file.quantization_mm:.4f})")
             tab.close()
+        # the whole page, as a user sees it (docs/images/viewer.png)
+        tab = browser.new_page(viewport={"width": 1200, "height": 760})
+        tab.goto(page_file.path.resolve().as_uri() + "#b=2,0,-1.5&c=displacement")
+        tab.wait_for_function("window.hortishape && window.hortishape.ready", timeout=300_000)
+        tab.screenshot(path=str(args.out / "page.png"))
+        tab.close()
         browser.close()
 
     def changed(a, b):
@@ -117,7 +124,7 @@ def main(argv=None) -> int:
 
     print(f"pixels that differ: mean vs #b=3 {changed('mean', 'b3'):.1f} %, mean vs #b=0,3 "
           f"{changed('mean', 'b0-3'):.1f} %, #b=3 vs #b=0,3 {changed('b3', 'b0-3'):.1f} %")
-    print(f"pictures: {', '.join(str(args.out / f'{n}.png') for n in pictures)}")
+    print(f"pictures: {', '.join(str(args.out / f'{n}.png') for n in [*pictures, 'page'])}")
     return 0
 
 

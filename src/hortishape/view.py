@@ -150,7 +150,6 @@ def _payload(model: ShapeModel, n_modes: int, precision: str, error_map, landmar
         "normals": _b64(np.rint(normals * 127), "int8"),
         "faces": _b64(faces, "uint16" if n <= 65535 else "uint32"),
         "modes": modes,
-        "variances_mm2": model.explained_variance_[:k].tolist(),
         "variance_ratio": model.explained_variance_ratio_[:k].tolist(),
         "sd": _b64(sd_point, "float32"),
         "error": None if error_map is None else _b64(error_map, "float32"),
@@ -164,14 +163,18 @@ def _numbers(model: ShapeModel, n_modes: int) -> str:
     var = model.explained_variance_
     ratio = model.explained_variance_ratio_
     cum = np.cumsum(ratio)
+    # a mode's variance sums over every coordinate; per point, 1 SD moves a point by this much (root mean square)
+    rms = np.sqrt(var / model.n_points_)
     rows = "".join(
-        f"<tr><td>{i + 1}</td><td>{var[i]:.4g}</td><td>{np.sqrt(var[i]):.3g}</td>"
+        f"<tr><td>{i + 1}</td><td>{var[i]:,.0f}</td><td>{rms[i]:.3g}</td>"
         f"<td>{100 * ratio[i]:.1f}</td><td>{100 * cum[i]:.1f}</td></tr>"
         for i in range(model.n_components_))
     note = ("" if n_modes == model.n_components_ else
-            f'<p class="hs-note">Sliders for the first {n_modes} of {model.n_components_} modes.</p>')
-    return ('<table><thead><tr><th>mode</th><th>variance mm²</th><th>SD mm</th><th>share %</th>'
-            f"<th>cumulative %</th></tr></thead><tbody>{rows}</tbody></table>{note}")
+            f"Sliders for the first {n_modes} of {model.n_components_} modes. ")
+    return ('<table><thead><tr><th>mode</th><th>variance mm²</th><th>per point mm</th><th>share %</th>'
+            f"<th>cumulative %</th></tr></thead><tbody>{rows}</tbody></table>"
+            f'<p class="hs-note">{note}Variance: over all coordinates (eq. 11); per point: how far 1 SD moves '
+            "a point, root mean square.</p>")
 
 
 def viewer_html(
@@ -392,7 +395,8 @@ def view_model(
             values = got if got is not None and got.shape == (model.n_points_,) else None
         if landmarks and layout.metrics.is_file():
             marks = _metrics_landmarks(layout.metrics)
-    title = f"Shape model: {model_path.parent.name if is_this_build else model_path.stem}"
+    where = model_path.resolve().parent
+    title = f"Shape model: {where.parent.name + '/' + where.name if is_this_build else model_path.stem}"
     return write_viewer(model, out, n_modes=n_modes, precision=precision, error_map=values, landmarks=marks,
                         title=title, provenance=provenance)
 

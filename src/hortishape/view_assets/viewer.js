@@ -100,7 +100,7 @@
       var label = document.createElement("label");
       label.htmlFor = "hs-mode-" + (k + 1);
       label.textContent = "mode " + (k + 1);
-      label.title = D.variances_mm2[k].toPrecision(3) + " mm² (" + (100 * D.variance_ratio[k]).toFixed(1) + " %)";
+      label.title = (100 * D.variance_ratio[k]).toFixed(1) + " % of the variance";
       var input = document.createElement("input");
       input.type = "range"; input.min = -LIMIT; input.max = LIMIT; input.step = 0.1; input.value = 0;
       input.id = "hs-mode-" + (k + 1);
