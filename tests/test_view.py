@@ -172,7 +172,7 @@ def test_view_model_reads_a_built_folder(model, tmp_path):
         page = view_model(source, tmp_path / "apples.html", n_modes=3)
         assert page.colourings[-1] == "error" and page.landmarks == ("stalk_tip",)  # the unplaced one left out
         text = page.path.read_text(encoding="utf-8")
-        assert "Shape model: apples" in text and "scans/apples" in text and "hortishape 0" in text
+        assert "/apples</title>" in text and "scans/apples" in text and "hortishape 0" in text
         np.testing.assert_allclose(decode(payload(page.path)["error"]), 0.25)
     # a model file elsewhere: no evaluation to take from
     model.save(tmp_path / "m.h5")
@@ -180,6 +180,25 @@ def test_view_model_reads_a_built_folder(model, tmp_path):
     assert page.colourings == ("shape", "displacement", "sd") and page.landmarks == ()
     with pytest.raises(HortishapeError, match="no model file in this folder"):
         view_model(tmp_path / "apples" / "evaluation", tmp_path / "x.html")
+
+
+def test_a_scalismo_model_file_and_a_large_mesh(model, tmp_path):
+    from pathlib import Path
+
+    page = view_model(Path(__file__).parent / "data" / "scalismo" / "asmData_model.h5", tmp_path / "scalismo.html")
+    assert page.n_modes == 20 and page.landmarks == ()
+    text = page.path.read_text(encoding="utf-8")
+    assert "<dt>written by</dt><dd>This is a useless info." in text  # what the file says, as it says it
+    assert "<dt>build time</dt><dd>Wed Jun 03 10:49:56 CEST 2015</dd>" in text
+    assert "<dt>instances</dt><dd>not recorded</dd>" in text
+    # more than 65,535 vertices: the triangles are stored as uint32
+    shapes, faces = population(2000, n_shapes=4)
+    big = ShapeModel().fit(np.concatenate([shapes + 100.0 * i for i in range(35)], axis=1),
+                           np.concatenate([faces + len(shapes[0]) * i for i in range(35)]))
+    assert big.n_points_ > 65535
+    data = payload(write_viewer(big, tmp_path / "big.html").path)
+    assert data["faces"]["dtype"] == "uint32"
+    np.testing.assert_array_equal(decode(data["faces"]).reshape(-1, 3), big.faces_)
 
 
 def test_command_line(model, tmp_path, capsys):

@@ -556,13 +556,20 @@ def model_provenance(path: str | os.PathLike) -> dict:
     True
     """
     tree = read_tree(path)
+
+    def text(key):
+        value = tree.datasets.get(key)
+        if isinstance(value, list) and len(value) == 1:
+            value = value[0]
+        return value if isinstance(value, str) else None
+
     out = {}
     if "/hortishape" in tree.groups:
         out["written by"] = f"hortishape {tree.string('/hortishape', 'hortishape_version', '?')}"
-    elif "/modelinfo/modelBuilder-0/builderName" in tree.datasets:
-        out["written by"] = str(tree.datasets["/modelinfo/modelBuilder-0/builderName"])
-    if "/modelinfo/build-time" in tree.datasets:
-        out["build time"] = str(tree.datasets["/modelinfo/build-time"])
+    elif text("/modelinfo/modelBuilder-0/builderName"):
+        out["written by"] = text("/modelinfo/modelBuilder-0/builderName")
+    if text("/modelinfo/build-time"):
+        out["build time"] = text("/modelinfo/build-time")
     return out
 
 

@@ -211,7 +211,7 @@ def viewer_html(
     title = title or "Shape model"
     js, plotly_version = _plotly_js()
     data, quantization = _payload(model, k, precision, error_map, landmarks, _stem(title))
-    n_samples = "?" if model.n_samples_ is None else str(model.n_samples_)
+    n_samples = "not recorded" if model.n_samples_ is None else str(model.n_samples_)
     facts = {"instances": n_samples, "vertices": f"{model.n_points_:,}", "triangles": f"{len(model.faces_):,}",
              "modes": f"{model.n_components_} ({k} with sliders)"}
     facts.update({str(key): str(v) for key, v in (provenance or {}).items() if v is not None})
@@ -224,7 +224,8 @@ def viewer_html(
         '<meta name="viewport" content="width=device-width, initial-scale=1">',
         f"<title>{esc(title)}</title><style>{_asset('viewer.css')}</style>",
         f"<script>{js}</script></head><body>",
-        f"<header><h1>{esc(title)}</h1><p>{esc(n_samples)} instances, {model.n_points_:,} vertices, "
+        f"<header><h1>{esc(title)}</h1><p>{'' if model.n_samples_ is None else f'{model.n_samples_} instances, '}"
+        f"{model.n_points_:,} vertices, "
         f"{model.n_components_} modes. Drag to rotate, scroll to zoom. The address keeps the sliders "
         "(#b=...), so it can be shared.</p></header>",
         '<main><div id="hs-plot"></div><aside>',
