@@ -141,7 +141,7 @@ def test_without_plotly_the_report_says_how_to_get_the_viewer(evaluated, tmp_pat
     model = ShapeModel.load(evaluated.model_dir / "model.h5")
     written = write_evaluation(evaluated, model, model.faces_, tmp_path / "evaluation")
     assert "viewer" not in written.files and not (tmp_path / "evaluation" / "viewer.html").exists()
-    assert 'pip install "hortishape[view]"' in written.files["report"].read_text()
+    assert 'pip install "hortishape[view]"' in written.files["report"].read_text(encoding="utf-8")
 
 
 def test_report_is_one_self_contained_page(evaluated):

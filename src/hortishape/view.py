@@ -171,7 +171,7 @@ def _numbers(model: ShapeModel, n_modes: int) -> str:
         for i in range(model.n_components_))
     note = ("" if n_modes == model.n_components_ else
             f"Sliders for the first {n_modes} of {model.n_components_} modes. ")
-    return ('<table><thead><tr><th>mode</th><th>variance mm²</th><th>per point mm</th><th>share %</th>'
+    return ('<table><thead><tr><th>mode</th><th>variance mm&sup2;</th><th>per point mm</th><th>share %</th>'
             f"<th>cumulative %</th></tr></thead><tbody>{rows}</tbody></table>"
             f'<p class="hs-note">{note}Variance: over all coordinates (eq. 11); per point: how far 1 SD moves '
             "a point, root mean square.</p>")

@@ -141,7 +141,7 @@
   }
 
   function colouring(p) {
-    var legend = {shape: "", displacement: "outward (+) / inward (−) from the mean, mm",
+    var legend = {shape: "", displacement: "outward (+) / inward (-) from the mean, mm",
                   sd: "the model's SD at each point, mm", error: "geometric error of the registration, mm"};
     document.getElementById("hs-legend").textContent = legend[colour];
     if (colour === "shape") return {color: D.colour, showscale: false};
