@@ -489,6 +489,20 @@ def _add_build(sub) -> None:
     p.add_argument("--spacing", type=_positive_float, nargs=3, default=None, metavar=("SX", "SY", "SZ"),
                    help="voxel size along x, y, z in mm for the volumes in INPUT_DIR, in place of what their "
                         "files say (as 'hortishape extract --spacing')")
+    g = p.add_argument_group(
+        "clusters and caches",
+        "--scheduler runs the registrations (both passes) and the extraction of volumes as tasks on a Dask "
+        "cluster: start 'dask scheduler' on one machine and 'dask worker tcp://HOST:8786 --nthreads 1' on as many "
+        "as you like (one thread per worker process: a registration uses a core). Each scan's bytes go to its "
+        "worker and the result comes back to be written here; volumes are read and their surfaces written by the "
+        "workers, so they must see INPUT_DIR and OUT. A worker that dies costs only its task, which Dask runs "
+        "again elsewhere; the summary says which were retried.")
+    g.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="the Dask scheduler, e.g. tcp://10.0.0.5:8786 (default: local processes)")
+    g.add_argument("--cache", type=Path, default=None, metavar="DIR",
+                   help="registrations by content (the scan's bytes, the reference, every setting and heuristic, "
+                        "hortishape's version), shared between builds: found there, a registration is not redone "
+                        "(default: only this build's OUT, from which an interrupted build resumes)")
     _add_landmarks(p)
     _add_scale(p)
     _add_registration_options(p)
@@ -503,6 +517,9 @@ def _print_build(result) -> None:
     _print_results(result.second_pass)
     for path, reason in result.skipped:
         print(f"skipped {path}: {reason}")
+    retried = [f"{r.name} ({r.attempts} attempts)" for r in (*result.first_pass, *result.second_pass) if r.attempts > 1]
+    if retried:
+        print(f"run again after their worker was lost: {', '.join(retried)}")
     if result.uncertain_orientation:
         from .pipeline import UNCERTAIN_CONFIDENCE
 
@@ -527,6 +544,7 @@ def _run_build(args) -> int:
         args.input_dir, args.out, reference=args.reference, n_points=args.points, n_modes=args.modes,
         n_jobs=args.jobs, strict=args.strict, config=_registration_config(args), scaling=args.scaling,
         progress=_stage_progress, scale=args.scale, landmarks=args.landmarks, spacing=args.spacing,
+        scheduler=args.scheduler, cache=args.cache,
     )
     _print_build(result)
     return 0

@@ -1911,6 +1911,7 @@ def extract_files(
     strict: bool = False,
     progress: Progress | None = None,
     spacing: Sequence[float] | None = None,
+    scheduler=None,
 ) -> list[ExtractResult]:
     """Extract the surface of every volume into ``out_dir`` (see :func:`extract_file`).
 
@@ -1928,6 +1929,9 @@ def extract_files(
         Stop at the first volume that fails instead of going on.
     progress : callable, optional
         Wraps the iterator of finished volumes (e.g. ``tqdm``).
+    scheduler : str or distributed.Client, optional
+        Run the extractions as tasks on this Dask cluster; its workers read
+        the volumes and write ``out_dir`` themselves, so they must see both.
 
     Returns
     -------
@@ -1953,5 +1957,7 @@ def extract_files(
     options = {"level": level, "smoothing": smoothing, "target_vertices": target_vertices,
                "remove_support": remove_support, "support_radius": support_radius, "picture": picture,
                "spacing": spacing}
-    jobs = [(str(p), str(out), options) for p in paths]
-    return run_jobs(_extract_job, jobs, n_jobs=n_jobs, progress=progress, stop=raise_failed if strict else None)
+    where = (lambda q: str(q.resolve())) if scheduler is not None else str  # a worker has its own working folder
+    jobs = [(where(p), where(out), options) for p in paths]
+    return run_jobs(_extract_job, jobs, n_jobs=n_jobs, progress=progress, stop=raise_failed if strict else None,
+                    scheduler=scheduler)

@@ -85,6 +85,9 @@ class InstanceResult:
         The orientation search's margin over the best distinct orientation
         (:attr:`hortishape.registration.Registration.orientation_confidence`):
         0 a tie, towards 1 sure; ``nan`` without a search.
+    attempts : int
+        How often its registration was started in this run: more than 1 when
+        a cluster lost the worker running it and ran it again (0 when resumed).
     """
 
     name: str
@@ -99,6 +102,7 @@ class InstanceResult:
     geometric_error: float = float("nan")
     kept_fraction: float = float("nan")
     orientation_confidence: float = float("nan")
+    attempts: int = 1
 
 
 def find_meshes(folder) -> list[Path]:
@@ -120,7 +124,7 @@ def find_meshes(folder) -> list[Path]:
 
 def find_scans(folder, out_dir, *, n_jobs: int | None = None, strict: bool = False,
                progress: Callable[[int, str], Progress] | None = None,
-               spacing: Sequence[float] | None = None) -> tuple[list[Path], list[tuple[str, str]]]:
+               spacing: Sequence[float] | None = None, scheduler=None) -> tuple[list[Path], list[tuple[str, str]]]:
     """The scans in ``folder``: its mesh files and the surfaces of its CT volumes.
 
     Volumes (:func:`hortishape.extract.find_volumes`: MHA/MHD, NRRD, NIfTI,
@@ -129,7 +133,9 @@ def find_scans(folder, out_dir, *, n_jobs: int | None = None, strict: bool = Fal
     (:func:`hortishape.extract.extract_files`); a volume already extracted
     from the same bytes is not redone. ``spacing`` (mm along x, y, z)
     replaces the voxel size the volume files give (see
-    :func:`hortishape.extract.extract_file`).
+    :func:`hortishape.extract.extract_file`). With ``scheduler`` the
+    extractions run on that Dask cluster, whose workers must see ``folder``
+    and ``out_dir`` (they read and write them directly).
 
     Returns
     -------
@@ -158,7 +164,8 @@ def find_scans(folder, out_dir, *, n_jobs: int | None = None, strict: bool = Fal
     failed = []
     if volumes:
         results = extract_files(volumes, ModelDir(out_dir).surfaces, n_jobs=n_jobs, strict=strict,
-                                progress=_stage(progress, len(volumes), "extract"), spacing=spacing)
+                                progress=_stage(progress, len(volumes), "extract"), spacing=spacing,
+                                scheduler=scheduler)
         files += [Path(r.mesh) for r in results if r.ok]
         failed = [(r.source, r.error) for r in results if not r.ok]
     return sorted(files, key=lambda p: p.name), failed
@@ -211,12 +218,12 @@ def _result_from_log(log: dict, source: Path, *, resumed: bool) -> InstanceResul
         name=source.stem, source=str(source), ok=True, resumed=resumed, seconds=s["seconds"],
         iterations=s["iterations"], converged=s["converged"], mean_distance=s["mean_distance_mm"],
         geometric_error=s["geometric_error_mm"], kept_fraction=s["kept_fraction"],
-        orientation_confidence=_number(s.get("orientation_confidence")),
+        orientation_confidence=_number(s.get("orientation_confidence")), attempts=0 if resumed else 1,
     )
 
 
-def _done_before(source: Path, out_dir: Path, fingerprint: str, digest: str) -> dict | None:
-    ply, log_path = out_dir / f"{source.stem}.ply", out_dir / f"{source.stem}.json"
+def _done_before(ply: Path, log_path: Path, fingerprint: str, digest: str) -> dict | None:
+    """The log of a registration already written for this fingerprint and scan content, or None."""
     if not (ply.is_file() and log_path.is_file()):
         return None
     try:
@@ -268,20 +275,30 @@ def _job_fingerprint(fingerprint: str, initial_transform, landmarks=None, refere
     return h.hexdigest()
 
 
-def _register_file(job) -> InstanceResult:
-    source, out_dir, initial_transform, landmarks = job
-    source, out_dir = Path(source), Path(out_dir)
+def _register_job(job) -> tuple[InstanceResult, tuple | None]:
+    """Register the worker's template to one scan: its result, and the registered vertices and log to write.
+
+    The scan is read from its path, or from ``data`` (its file's bytes, sent
+    by the client when the job runs on a cluster whose workers may not see
+    the client's files). Nothing is written here: the caller writes what
+    comes back, so workers need no access to the output folder.
+    """
+    source, data, digest, fingerprint, initial_transform, landmarks = job
+    source = Path(source)
     template, config = _WORKER["template"], _WORKER["config"]
     reference_landmarks = _WORKER.get("reference_landmarks")
     if not reference_landmarks:
         landmarks = None
-    fingerprint = _job_fingerprint(_WORKER["fingerprint"], initial_transform, landmarks, reference_landmarks)
     try:
-        digest = _file_digest(source)
-        done = _done_before(source, out_dir, fingerprint, digest)
-        if done is not None:
-            return _result_from_log(done, source, resumed=True)
-        scan = read_scan(source, scale=_WORKER.get("scale", 1.0))
+        if data is None:
+            scan = read_scan(source, scale=_WORKER.get("scale", 1.0))
+        else:
+            import tempfile
+
+            with tempfile.TemporaryDirectory(prefix="hortishape-") as tmp:
+                local = Path(tmp) / source.name
+                local.write_bytes(data)
+                scan = read_scan(local, scale=_WORKER.get("scale", 1.0))
         target = scan.mesh
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", ConvergenceWarning)  # reported as converged=False
@@ -295,25 +312,35 @@ def _register_file(job) -> InstanceResult:
                                geometric_error=geometric, units=scan.units)
         if landmarks:
             log["landmarks"] = sorted(set(landmarks) & set(reference_landmarks))
-        write_mesh(out_dir / f"{source.stem}.ply", reg.mesh)
-        # the log last: its presence with the right fingerprint marks the scan done
-        atomic_text(out_dir / f"{source.stem}.json", json.dumps(_jsonable(log), indent=1), HortishapeError)
-        return _result_from_log(log, source, resumed=False)
+        return _result_from_log(log, source, resumed=False), (reg.vertices, _jsonable(log))
     except HortishapeError as exc:
         msg = str(exc)
         if not msg.startswith(str(source)):  # errors about "target" name the file here
             msg = f"{source}: {msg}"
-        return InstanceResult(name=source.stem, source=str(source), ok=False, error=msg)
+        return InstanceResult(name=source.stem, source=str(source), ok=False, error=msg), None
     except OSError as exc:
         return InstanceResult(name=source.stem, source=str(source), ok=False,
-                              error=f"{source}: {exc.strerror or exc}")
+                              error=f"{source}: {exc.strerror or exc}"), None
     except Exception as exc:  # a bug must not lose the rest of the batch; say what it was
         where = traceback.extract_tb(exc.__traceback__)[-1]
         return InstanceResult(
             name=source.stem, source=str(source), ok=False,
             error=f"{source}: internal error {type(exc).__name__}: {exc} "
                   f"(at {Path(where.filename).name}:{where.lineno}; please report it)",
-        )
+        ), None
+
+
+def _write_registration(folder: Path, stem: str, vertices, faces, log: dict) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    write_mesh(folder / f"{stem}.ply", Mesh(vertices, faces))
+    # the log last: its presence with the right fingerprint marks the scan done
+    atomic_text(folder / f"{stem}.json", json.dumps(log, indent=1), HortishapeError)
+
+
+def _with_bytes(job):
+    """A job with its scan's bytes, for a worker that may not see this machine's files."""
+    source, _, *rest = job
+    return (source, Path(source).read_bytes(), *rest)
 
 
 def register_files(
@@ -329,6 +356,8 @@ def register_files(
     scale: float = 1.0,
     landmarks: Mapping | None = None,
     reference_landmarks: Mapping | None = None,
+    scheduler=None,
+    cache=None,
 ) -> list[InstanceResult]:
     """Register ``reference`` to every scan file and write the results.
 
@@ -372,6 +401,19 @@ def register_files(
         scan without any is registered as without landmarks.
     reference_landmarks : mapping of str to (3,) array_like, optional
         Named points on the reference, in mm, in its coordinates.
+    scheduler : str or distributed.Client, optional
+        Run the registrations as tasks on this Dask cluster (the address of a
+        ``dask scheduler``) instead of local processes. Each scan's bytes are
+        sent to its worker and the result comes back here to be written, so
+        the workers need not see this machine's files; a task whose worker
+        dies is run again elsewhere (``InstanceResult.attempts`` counts it).
+    cache : path, optional
+        A folder of registrations by content: the hash of the scan's bytes,
+        of the reference, of the configuration with every heuristic constant,
+        and hortishape's version. A registration found there is copied, not
+        redone, whatever the scan's name or the output folder; every new one
+        is added. Share it between builds (on a cluster: on storage this
+        machine sees).
 
     Returns
     -------
@@ -406,15 +448,58 @@ def register_files(
         if not shared:
             raise HortishapeError(f"no landmark names the reference ({', '.join(sorted(ref_marks))}) shares "
                                   "with any scan")
-    jobs = [(str(t), str(out_dir), None if a is None else np.asarray(a, dtype=np.float64).reshape(4, 4),
-             {n: p for n, p in marks.get(t.stem, {}).items() if ref_marks and n in ref_marks} or None)
-            for t, a in zip(targets, starts)]
+    results: list = [None] * len(targets)
+    jobs, where = [], []
+    faces = template.mesh.faces
+    cache_dir = None if cache is None else Path(cache)
+    for i, (t, a) in enumerate(zip(targets, starts)):
+        start_transform = None if a is None else np.asarray(a, dtype=np.float64).reshape(4, 4)
+        scan_marks = {n: p for n, p in marks.get(t.stem, {}).items() if ref_marks and n in ref_marks} or None
+        job_fp = _job_fingerprint(fingerprint, start_transform, scan_marks, ref_marks if scan_marks else None)
+        try:
+            digest = _file_digest(t)
+        except OSError as exc:
+            results[i] = InstanceResult(name=t.stem, source=str(t), ok=False, error=f"{t}: {exc.strerror or exc}")
+            if strict:
+                raise_failed(results[i])
+            continue
+        done = _done_before(out_dir / f"{t.stem}.ply", out_dir / f"{t.stem}.json", job_fp, digest)
+        if done is None and cache_dir is not None:  # the same bytes and settings registered by another build
+            key = hashlib.sha256(f"{job_fp}:{digest}".encode()).hexdigest()
+            hit = _done_before(cache_dir / f"{key}.ply", cache_dir / f"{key}.json", job_fp, digest)
+            if hit is not None:
+                hit["source"] = str(t)
+                _write_registration(out_dir, t.stem, read_mesh(cache_dir / f"{key}.ply").vertices, faces, hit)
+                done = hit
+        if done is not None:
+            results[i] = _result_from_log(done, t, resumed=True)
+            continue
+        jobs.append((str(t), None, digest, job_fp, start_transform, scan_marks))
+        where.append(i)
+
+    def collect(k: int, returned, attempts: int) -> InstanceResult:
+        result, payload = returned
+        if payload is not None:
+            vertices, log = payload
+            stem = Path(jobs[k][0]).stem
+            if attempts > 1:
+                log["attempts"] = attempts
+            _write_registration(out_dir, stem, vertices, faces, log)
+            if cache_dir is not None:
+                key = hashlib.sha256(f"{jobs[k][3]}:{jobs[k][2]}".encode()).hexdigest()
+                _write_registration(cache_dir, key, vertices, faces, log)
+        return replace(result, attempts=attempts)
+
     try:
-        results = run_jobs(_register_file, jobs, n_jobs=n_jobs, progress=progress,
-                           stop=raise_failed if strict else None,
-                           initializer=_init_worker, initargs=(template, cfg, fingerprint, scale, ref_marks))
+        done_now = run_jobs(_register_job, jobs, n_jobs=n_jobs, progress=progress,
+                            stop=raise_failed if strict else None, collect=collect,
+                            initializer=_init_worker, initargs=(template, cfg, fingerprint, scale, ref_marks),
+                            scheduler=scheduler if jobs else None, ship=_with_bytes if scheduler is not None else None,
+                            done=[r for r in results if r is not None])
     finally:
         _WORKER.clear()  # when the jobs ran in this process
+    for i, r in zip(where, done_now):
+        results[i] = r
     return results  # type: ignore[return-value]
 
 
@@ -560,6 +645,8 @@ def build_model(
     scale: float = 1.0,
     landmarks=None,
     spacing: Sequence[float] | None = None,
+    scheduler=None,
+    cache=None,
 ) -> BuildResult:
     """Build a statistical shape model from a folder of scans (paper section 2.2.3).
 
@@ -623,6 +710,15 @@ def build_model(
     spacing : (3,) sequence of float, optional
         Voxel size in mm (x, y, z) for the volumes in ``input_dir``, in place
         of what their files say (see :func:`find_scans`).
+    scheduler : str or distributed.Client, optional
+        Run the registrations (both passes and the orientation check) and the
+        extraction of volumes as tasks on this Dask cluster (the address of a
+        ``dask scheduler``; see :func:`register_files`). Default: local
+        processes.
+    cache : path, optional
+        A folder of registrations by content, shared between builds (see
+        :func:`register_files`). Without it, an interrupted build still
+        resumes from ``out_dir``.
 
     Returns
     -------
@@ -639,7 +735,8 @@ def build_model(
     start = time.perf_counter()
     out = Path(out_dir)
     layout = ModelDir(out)
-    files, failed = find_scans(input_dir, out, n_jobs=n_jobs, strict=strict, progress=progress, spacing=spacing)
+    files, failed = find_scans(input_dir, out, n_jobs=n_jobs, strict=strict, progress=progress, spacing=spacing,
+                               scheduler=scheduler)
     checks = check_scans(files, scale=scale)
     skipped = failed + [(c.path, c.error) for c in checks if not c.ok]
     if strict and skipped:
@@ -663,7 +760,8 @@ def build_model(
                  reference_landmarks=None) -> list[InstanceResult]:
         results = register_files(template, paths, folder, config=cfg, n_jobs=n_jobs, strict=strict,
                                  progress=_stage(progress, len(paths), desc), initial_transforms=starts,
-                                 scale=scale, landmarks=marks, reference_landmarks=reference_landmarks)
+                                 scale=scale, landmarks=marks, reference_landmarks=reference_landmarks,
+                                 scheduler=scheduler, cache=cache)
         for r in results:
             if not r.ok:
                 skipped.append((r.source, r.error))
@@ -678,7 +776,7 @@ def build_model(
         first_files, layout, lambda paths, folder, c, starts=None: register_files(
             template, paths, folder, config=c, n_jobs=n_jobs, initial_transforms=starts,
             progress=_stage(progress, len(paths), "orientation check"), scale=scale,
-            landmarks=marks, reference_landmarks=ref_marks),
+            landmarks=marks, reference_landmarks=ref_marks, scheduler=scheduler, cache=cache),
         cfg, scaling=scaling, flip=_end_over_end(template),
     )
 
@@ -724,6 +822,8 @@ def build_model(
         "n_points": template.mesh.n_vertices,
         "instances": names,
         "skipped": [{"path": p, "reason": e} for p, e in skipped],
+        "retried": [{"name": r.name, "pass": k + 1, "attempts": r.attempts}
+                    for k, rs in enumerate((first, second)) for r in rs if r.attempts > 1],
         "first_pass": [asdict(r) for r in first],
         "orientation_check": rechecked,
         "uncertain_orientation": [{"name": n, "confidence": c} for n, c in uncertain],
