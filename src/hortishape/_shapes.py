@@ -125,4 +125,6 @@ def fit_transforms(sources: np.ndarray, target: np.ndarray, w: np.ndarray, scali
 
 def apply_transforms(transforms: np.ndarray, shapes: np.ndarray) -> np.ndarray:
     """Apply ``(N, 4, 4)`` transforms to ``(N, n, 3)`` shapes."""
-    return shapes @ np.swapaxes(transforms[:, :3, :3], 1, 2) + transforms[:, None, :3, 3]
+    out = shapes @ np.swapaxes(transforms[:, :3, :3], 1, 2)
+    out += transforms[:, None, :3, 3]  # in place: one (N, n, 3) array, not two
+    return out

@@ -156,7 +156,7 @@ def generalized_procrustes(
     converged = False
     n_iter = 0
     for n_iter in range(1, int(max_iter) + 1):
-        mean = apply_transforms(fit_transforms(x, reference, w, scaling), x).mean(axis=0)
+        mean = _aligned_mean(x, reference, w, scaling)
         # gauge: the mean in the pose (and size) of the first shape
         gauge = fit_transforms(mean[None], first, w, scaling)[0]
         new_reference = mean @ gauge[:3, :3].T + gauge[:3, 3]
@@ -173,9 +173,27 @@ def generalized_procrustes(
             ConvergenceWarning,
             stacklevel=2,
         )
-    transforms = fit_transforms(x, reference, w, scaling)
+    transforms = np.concatenate([fit_transforms(x[c], reference, w, scaling) for c in _chunks(n_shapes)])
     aligned = apply_transforms(transforms, x)
     return Procrustes(aligned, transforms, aligned.mean(axis=0), n_iter, converged)
+
+
+#: Shapes aligned at a time inside an iteration: the memory an iteration
+#: needs beyond the shapes themselves stays that many shapes' worth, however
+#: many there are.
+CHUNK = 64
+
+
+def _chunks(n_shapes: int):
+    return (slice(s, min(s + CHUNK, n_shapes)) for s in range(0, n_shapes, CHUNK))
+
+
+def _aligned_mean(x: np.ndarray, reference: np.ndarray, w: np.ndarray, scaling: bool) -> np.ndarray:
+    """The mean of the shapes aligned onto ``reference``, a chunk of shapes at a time."""
+    total = np.zeros(x.shape[1:])
+    for c in _chunks(len(x)):
+        total += apply_transforms(fit_transforms(x[c], reference, w, scaling), x[c]).sum(axis=0)
+    return total / len(x)
 
 
 def procrustes_align(
