@@ -1,6 +1,7 @@
 """Building a model from a folder: two passes, Procrustes, PCA, files, bad scans, resume."""
 
 import json
+from pathlib import Path
 
 import h5py
 import numpy as np
@@ -11,7 +12,7 @@ from hortishape.cli import main
 from hortishape.errors import HortishapeError
 from hortishape.io import read_mesh, write_mesh
 from hortishape.model import ShapeModel
-from hortishape.pipeline import build_model, check_scans, choose_reference, fit_scan
+from hortishape.pipeline import build_model, check_scans, choose_reference, fit_scan, update_model
 from hortishape.registration import RegistrationConfig
 
 CONFIG = RegistrationConfig(n_iterations=12)
@@ -177,3 +178,53 @@ def test_cli_build_with_landmarks(scans, tmp_path, capsys):
     assert main(["build", str(scans), "--out", str(tmp_path / "n"), "--points", "2000", "--reference",
                  str(scans / "apple_000.ply"), "--landmarks", str(marks)]) == 1
     assert "no landmarks for the reference apple_000" in capsys.readouterr().err
+
+
+# -------------------------------------------------------------------- adding scans to a built model
+
+
+def _digests(folder):
+    import hashlib
+
+    return {p.relative_to(folder): hashlib.sha256(p.read_bytes()).hexdigest() for p in folder.rglob("*") if p.is_file()}
+
+
+@pytest.mark.slow
+def test_update_adds_scans_without_redoing_the_model_and_equals_a_full_build(built, scans, tmp_path, capsys):
+    new = tmp_path / "new"
+    synth.write_population("apple", 3, new, random_state=12, pose="upright", n_vertices=10000, n_jobs=1)
+    for i, p in enumerate(sorted(new.glob("apple_*"))):  # names of their own (synth numbers from 000)
+        p.rename(new / p.name.replace("apple_", f"new_{i}_"))
+    before = _digests(built.out_dir)
+    out = tmp_path / "updated"
+    assert main(["update", str(built.out_dir), str(new), "--out", str(out), "--iterations", "12"]) == 0
+    printed = capsys.readouterr().out
+    assert "model: 7 instances, 6 modes; the mean moved" in printed
+    assert _digests(built.out_dir) == before  # the model folder is not changed
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["update"]["earlier"] == list(built.names) and len(summary["update"]["added"]) == 3
+    for name in built.names:  # the earlier registrations copied as they were
+        assert (out / "registered" / f"{name}.ply").read_bytes() == (built.out_dir / "registered" / f"{name}.ply").read_bytes()
+    # a build of all seven from the same reference gives the same model, up to the registrations' template
+    everything = tmp_path / "all"
+    everything.mkdir()
+    for p in [*(Path(scans) / f"{n}.ply" for n in built.names), *new.glob("*.ply")]:
+        (everything / p.name).write_bytes(p.read_bytes())
+    full = build_model(everything, tmp_path / "full", n_points=2000, config=CONFIG, n_jobs=2,
+                       reference=everything / Path(built.reference).name)
+    a, b = ShapeModel.load(out / "model.h5"), ShapeModel.load(full.model_path)
+    from hortishape.procrustes import procrustes_align
+
+    moved, _ = procrustes_align(a.mean_, b.mean_)
+    assert np.sqrt(((moved - b.mean_) ** 2).sum(axis=1).mean()) < 0.2  # mm
+    assert a._total_variance == pytest.approx(b._total_variance, rel=0.05)
+    # the same folder again, a name already in the model, not a model folder
+    with pytest.raises(HortishapeError, match="a folder of its own"):
+        update_model(built.out_dir, new, built.out_dir)
+    with pytest.raises(HortishapeError, match="not a built model folder"):
+        update_model(new, new, tmp_path / "x")
+    clash = tmp_path / "clash"
+    clash.mkdir()
+    (clash / "apple_000.ply").write_bytes((Path(scans) / "apple_000.ply").read_bytes())
+    with pytest.raises(HortishapeError, match="already in the model"):
+        update_model(built.out_dir, clash, tmp_path / "y", config=CONFIG)

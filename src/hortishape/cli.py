@@ -550,6 +550,58 @@ def _run_build(args) -> int:
     return 0
 
 
+def _add_update(sub) -> None:
+    p = sub.add_parser(
+        "update", help="add scans to a built model without registering its scans again",
+        description=("Add the scans in NEW_SCANS to the model that 'hortishape build' wrote in MODEL_DIR, into a new "
+                     "folder OUT: the model's mean is registered to every new scan (with the orientation search); "
+                     "the scans already in the model keep their registrations (copied, not redone); then "
+                     "Procrustes over all of them and the PCA, as a build ends. MODEL_DIR is not changed.\n\n"
+                     "It differs from a build of all the scans in one way: there every scan is registered to the "
+                     "mean of all the first pass's registrations; here the earlier scans were registered to the mean "
+                     "of theirs and the new ones to the model's mean. OUT/summary.json says which scans came from "
+                     "where ('update') and how far the mean moved. Use the registration options the model was "
+                     "built with."),
+        epilog=EPILOG, formatter_class=_Formatter)
+    p.add_argument("model_dir", type=Path, metavar="MODEL_DIR", help="a folder 'hortishape build' wrote")
+    p.add_argument("input_dir", type=Path, metavar="NEW_SCANS", help="folder of the new scans (meshes or volumes)")
+    p.add_argument("--out", type=Path, required=True, metavar="OUT", help="the updated model's folder")
+    p.add_argument("--jobs", type=_positive_int, default=None, metavar="J",
+                   help="parallel registrations (default: all cores)")
+    p.add_argument("--strict", action="store_true", help="stop at the first bad scan instead of skipping it")
+    p.add_argument("--spacing", type=_positive_float, nargs=3, default=None, metavar=("SX", "SY", "SZ"),
+                   help="voxel size along x, y, z in mm for the volumes in NEW_SCANS")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="run the registrations on this Dask cluster (as 'hortishape build --scheduler')")
+    p.add_argument("--cache", type=Path, default=None, metavar="DIR",
+                   help="registrations by content, shared between builds (as 'hortishape build --cache')")
+    _add_scale(p)
+    _add_registration_options(p)
+    p.set_defaults(run=_run_update)
+
+
+def _run_update(args) -> int:
+    from .pipeline import update_model
+
+    result = update_model(
+        args.model_dir, args.input_dir, args.out, n_jobs=args.jobs, strict=args.strict,
+        config=_registration_config(args), progress=_stage_progress, scale=args.scale, spacing=args.spacing,
+        scheduler=args.scheduler, cache=args.cache,
+    )
+    added = [r for r in result.second_pass if r.ok]
+    print(f"added to {args.model_dir} ({len(result.names) - len(added)} scans, kept as they were):")
+    _print_results(result.second_pass)
+    for path, reason in result.skipped:
+        print(f"skipped {path}: {reason}")
+    import json
+
+    moved = json.loads((Path(result.out_dir) / "summary.json").read_text())["update"]["mean_moved_rms_mm"]
+    print(f"model: {len(result.names)} instances, {len(result.explained_variance)} modes; the mean moved "
+          f"{moved:.3f} mm (RMS over the vertices)")
+    print(f"wrote {result.model_path} in {result.seconds:.1f} s")
+    return 0
+
+
 def _load_model(path: Path, command: str | None = None):
     """The model at ``path``; for a ``command`` that makes surfaces, only one with triangles."""
     from .model import ShapeModel
@@ -1028,7 +1080,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-_COMMANDS = [_add_demo, _add_synth, _add_extract, _add_register, _add_build, _add_sample, _add_modes, _add_fit, _add_cad,
+_COMMANDS = [_add_demo, _add_synth, _add_extract, _add_register, _add_build, _add_update, _add_sample, _add_modes, _add_fit, _add_cad,
              _add_evaluate, _add_view, _add_convert]
 
 

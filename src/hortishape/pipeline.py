@@ -49,6 +49,7 @@ __all__ = [
     "read_reference_landmarks",
     "register_files",
     "template_fingerprint",
+    "update_model",
 ]
 
 
@@ -729,7 +730,6 @@ def build_model(
     HortishapeError
         If fewer than 3 scans are usable, or with ``strict`` at the first bad scan.
     """
-    from .model import ShapeModel
     from .procrustes import generalized_procrustes
 
     start = time.perf_counter()
@@ -805,13 +805,8 @@ def build_model(
     uncertain = tuple((Path(r.source).stem, r.orientation_confidence) for r in first
                       if r.ok and Path(r.source).stem in names and r.orientation_confidence < UNCERTAIN_CONFIDENCE)
     shapes = np.stack([read_mesh(layout.registered_mesh(n)).vertices for n in names])
-    gpa = generalized_procrustes(shapes, scaling=scaling)
-    layout.aligned.mkdir(parents=True, exist_ok=True)
-    for name, aligned in zip(names, gpa.aligned):
-        write_mesh(layout.aligned_mesh(name), aligned, template2.mesh.faces)
-    model = ShapeModel(n_components=n_modes).fit(gpa.aligned, template2.mesh.faces, names=names)
+    model, gpa = _align_and_fit(layout, names, shapes, template2.mesh.faces, scaling=scaling, n_modes=n_modes)
     model_path = layout.model
-    model.save(model_path)
 
     seconds = time.perf_counter() - start
     summary = {
@@ -1013,6 +1008,168 @@ def _jsonable(value):
     if isinstance(value, (list, tuple)):
         return [_jsonable(v) for v in value]
     return value
+
+
+def _align_and_fit(layout: ModelDir, names, shapes: np.ndarray, faces, *, scaling: bool, n_modes):
+    """Generalized Procrustes, the aligned surfaces written, the PCA model fitted and saved."""
+    from .model import ShapeModel
+    from .procrustes import generalized_procrustes
+
+    gpa = generalized_procrustes(shapes, scaling=scaling)
+    layout.aligned.mkdir(parents=True, exist_ok=True)
+    for name, aligned in zip(names, gpa.aligned):
+        write_mesh(layout.aligned_mesh(name), aligned, faces)
+    model = ShapeModel(n_components=n_modes).fit(gpa.aligned, faces, names=list(names))
+    model.save(layout.model)
+    return model, gpa
+
+
+def update_model(
+    model_dir,
+    input_dir,
+    out_dir,
+    *,
+    n_jobs: int | None = None,
+    strict: bool = False,
+    config: RegistrationConfig | None = None,
+    progress: Callable[[int, str], Progress] | None = None,
+    scale: float = 1.0,
+    spacing: Sequence[float] | None = None,
+    scheduler=None,
+    cache=None,
+) -> BuildResult:
+    """Add scans to a built model, without registering the scans already in it.
+
+    The model's mean is registered to every new scan (with the orientation
+    search; as the paper's second pass registers a mean); the earlier scans
+    keep their registrations, which are copied with their aligned surfaces
+    into ``out_dir``. Then generalized Procrustes over all the scans and the
+    PCA, as :func:`build_model` ends; ``model_dir`` is not changed.
+
+    The result differs from a build of all the scans in one way: there every
+    scan is registered to the mean of all the first pass's registrations;
+    here the earlier scans were registered to the mean of theirs, and the new
+    ones to the model's mean. How much that moves the model is measured in
+    the README ("Adding scans to a model"). ``summary.json`` says which scans
+    came from where (``update``).
+
+    Parameters
+    ----------
+    model_dir : path
+        A folder :func:`build_model` (or this function) wrote.
+    input_dir : path
+        Folder of the new scans (meshes or volumes, as for :func:`build_model`).
+    out_dir : path
+        The updated model's folder: not ``model_dir``.
+    n_jobs, strict, config, progress, scale, spacing, scheduler, cache
+        As for :func:`build_model`. ``config`` should be the one the model
+        was built with (default: the paper's).
+
+    Returns
+    -------
+    BuildResult
+        ``first_pass`` is empty; ``second_pass`` holds the new scans'
+        registrations; ``names`` the earlier instances, then the new ones.
+
+    Raises
+    ------
+    HortishapeError
+        If ``model_dir`` is not a built model folder, ``out_dir`` is
+        ``model_dir``, or no new scan could be registered (with ``strict``, at
+        the first that fails).
+    """
+    start = time.perf_counter()
+    src, layout = ModelDir(model_dir), ModelDir(out_dir)
+    if not src.is_built():
+        raise HortishapeError(f"{model_dir}: not a built model folder (it needs {src.summary.name} and "
+                              f"{src.model.name}; 'hortishape build' writes them)")
+    if layout.root.resolve() == src.root.resolve():
+        raise HortishapeError(f"{out_dir}: the updated model needs a folder of its own; {model_dir} is not changed")
+    from .model import ShapeModel
+
+    try:
+        before = json.loads(src.summary.read_text())
+        old_names = [str(n) for n in before["instances"]]
+        scaling = bool(before["procrustes"]["scaling"])
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise HortishapeError(f"{src.summary}: unreadable build summary ({exc})") from None
+    old_model = ShapeModel.load(src.model)
+    if old_model.faces_ is None:
+        raise HortishapeError(f"{src.model}: a point-set model (no triangles) cannot be registered to scans")
+    missing = [n for n in old_names if not src.aligned_mesh(n).is_file()]
+    if missing:
+        raise HortishapeError(f"{model_dir}: the aligned surface of {missing[0]} is missing "
+                              f"({src.aligned_mesh(missing[0])}); it is needed to update the model")
+
+    layout.root.mkdir(parents=True, exist_ok=True)
+    files, failed = find_scans(input_dir, layout.root, n_jobs=n_jobs, strict=strict, progress=progress,
+                               spacing=spacing, scheduler=scheduler)
+    checks = check_scans(files, scale=scale)
+    skipped = failed + [(c.path, c.error) for c in checks if not c.ok]
+    taken = set(old_names)
+    for c in checks:
+        if c.ok and Path(c.path).stem in taken:
+            skipped.append((c.path, f"{c.path}: a scan named {Path(c.path).stem} is already in the model"))
+    if strict and skipped:
+        raise HortishapeError(skipped[0][1])
+    usable = [Path(c.path) for c in checks if c.ok and Path(c.path).stem not in taken]
+    cfg = config if config is not None else RegistrationConfig()
+    template = prepare_reference(Mesh(old_model.mean_, old_model.faces_), None)
+    added = register_files(template, usable, layout.registered, config=cfg, n_jobs=n_jobs, strict=strict,
+                           progress=_stage(progress, len(usable), "registration of the new scans"), scale=scale,
+                           scheduler=scheduler, cache=cache)
+    skipped += [(r.source, r.error) for r in added if not r.ok]
+    new_names = [r.name for r in added if r.ok]
+    if not new_names:
+        reasons = "; ".join(e for _, e in skipped[:3])
+        raise HortishapeError(f"{input_dir}: no new scan was registered" + (f" ({reasons})" if reasons else ""))
+
+    # the earlier scans as they are: registered surfaces and logs copied, aligned surfaces read
+    import shutil
+
+    for name in old_names:
+        for f in (src.registered_mesh(name), src.registered_mesh(name).with_suffix(".json")):
+            if f.is_file():
+                shutil.copyfile(f, layout.registered / f.name)
+    shapes = np.stack([read_mesh(src.aligned_mesh(n)).vertices for n in old_names]
+                      + [read_mesh(layout.registered_mesh(n)).vertices for n in new_names])
+    names = old_names + new_names
+    model, gpa = _align_and_fit(layout, names, shapes, old_model.faces_, scaling=scaling,
+                                n_modes=old_model.n_components)
+    shift = float(np.sqrt(((model.mean_ - old_model.mean_) ** 2).sum(axis=1).mean()))
+    seconds = time.perf_counter() - start
+    summary = {
+        "units": {"unit": "mm", "scale": scale, "extent_mm": {c.path: c.extent for c in checks if c.ok},
+                  "plausible_extent_mm": list(PLAUSIBLE_EXTENT_MM)},
+        "input_dir": str(input_dir),
+        "reference": f"the mean of {src.model}",
+        "n_points": model.n_points_,
+        "instances": names,
+        "skipped": [{"path": p, "reason": e} for p, e in skipped],
+        "retried": [{"name": r.name, "pass": 2, "attempts": r.attempts} for r in added if r.attempts > 1],
+        "update": {
+            "from": str(src.root),
+            "earlier": old_names,
+            "added": new_names,
+            "how": "the earlier scans keep the registrations of the build they came from (to the mean of its "
+                   "first pass); the added scans are registered to that model's mean. A build of all the scans "
+                   "would register every scan to the mean of all the first pass's registrations.",
+            "mean_moved_rms_mm": shift,
+        },
+        "first_pass": [],
+        "second_pass": [asdict(r) for r in added],
+        "uncertain_orientation": [],
+        "procrustes": {"scaling": scaling, "iterations": int(gpa.n_iter)},
+        "model": {
+            "n_modes": int(model.n_components_),
+            "variances_mm2": model.explained_variance_.tolist(),
+            "explained_variance_ratio": model.explained_variance_ratio_.tolist(),
+        },
+        "seconds": seconds,
+    }
+    atomic_text(layout.summary, json.dumps(_jsonable(summary), indent=1), HortishapeError)
+    return BuildResult(layout.root, layout.model, f"the mean of {src.model}", tuple(names), tuple(skipped), (),
+                       tuple(added), model.explained_variance_, model.n_points_, seconds, ())
 
 
 def _need_three(paths: Sequence, input_dir) -> None:
