@@ -338,6 +338,11 @@ def _write_registration(folder: Path, stem: str, vertices, faces, log: dict) -> 
     atomic_text(folder / f"{stem}.json", json.dumps(log, indent=1), HortishapeError)
 
 
+def _cache_key(job_fingerprint: str, digest: str) -> str:
+    """A registration's name in the cache: what decided it (settings, reference, start) and the scan's bytes."""
+    return hashlib.sha256(f"{job_fingerprint}:{digest}".encode()).hexdigest()
+
+
 def _with_bytes(job):
     """A job with its scan's bytes, for a worker that may not see this machine's files."""
     source, _, *rest = job
@@ -466,7 +471,7 @@ def register_files(
             continue
         done = _done_before(out_dir / f"{t.stem}.ply", out_dir / f"{t.stem}.json", job_fp, digest)
         if done is None and cache_dir is not None:  # the same bytes and settings registered by another build
-            key = hashlib.sha256(f"{job_fp}:{digest}".encode()).hexdigest()
+            key = _cache_key(job_fp, digest)
             hit = _done_before(cache_dir / f"{key}.ply", cache_dir / f"{key}.json", job_fp, digest)
             if hit is not None:
                 hit["source"] = str(t)
@@ -487,8 +492,7 @@ def register_files(
                 log["attempts"] = attempts
             _write_registration(out_dir, stem, vertices, faces, log)
             if cache_dir is not None:
-                key = hashlib.sha256(f"{jobs[k][3]}:{jobs[k][2]}".encode()).hexdigest()
-                _write_registration(cache_dir, key, vertices, faces, log)
+                _write_registration(cache_dir, _cache_key(jobs[k][3], jobs[k][2]), vertices, faces, log)
         return replace(result, attempts=attempts)
 
     try:
