@@ -483,30 +483,35 @@ def _add_build(sub) -> None:
                    help="modes to keep: a number, or a fraction of the variance such as 0.99 (default: all)")
     p.add_argument("--scaling", action="store_true",
                    help="remove size in the Procrustes alignment (then size is not a mode)")
+    _add_batch_options(p, "INPUT_DIR")
+    _add_landmarks(p)
+    _add_scale(p)
+    _add_registration_options(p)
+    p.set_defaults(run=_run_build)
+
+
+def _add_batch_options(p, folder: str) -> None:
+    """--jobs, --strict, --spacing, and the cluster and cache options of 'build' and 'update'."""
     p.add_argument("--jobs", type=_positive_int, default=None, metavar="J",
                    help="parallel registrations (default: all cores)")
     p.add_argument("--strict", action="store_true", help="stop at the first bad scan instead of skipping it")
     p.add_argument("--spacing", type=_positive_float, nargs=3, default=None, metavar=("SX", "SY", "SZ"),
-                   help="voxel size along x, y, z in mm for the volumes in INPUT_DIR, in place of what their "
+                   help=f"voxel size along x, y, z in mm for the volumes in {folder}, in place of what their "
                         "files say (as 'hortishape extract --spacing')")
     g = p.add_argument_group(
         "clusters and caches",
-        "--scheduler runs the registrations (both passes) and the extraction of volumes as tasks on a Dask "
-        "cluster: start 'dask scheduler' on one machine and 'dask worker tcp://HOST:8786 --nthreads 1' on as many "
-        "as you like (one thread per worker process: a registration uses a core). Each scan's bytes go to its "
-        "worker and the result comes back to be written here; volumes are read and their surfaces written by the "
-        "workers, so they must see INPUT_DIR and OUT. A worker that dies costs only its task, which Dask runs "
-        "again elsewhere; the summary says which were retried.")
+        "--scheduler runs the registrations and the extraction of volumes as tasks on a Dask cluster: start "
+        "'dask scheduler' on one machine and 'dask worker tcp://HOST:8786 --nthreads 1' on as many as you like "
+        "(one thread per worker process: a registration uses a core). Each scan's bytes go to its worker and the "
+        "result comes back to be written here; volumes are read and their surfaces written by the workers, so "
+        f"they must see {folder} and OUT. A worker that dies costs only its task, which Dask runs again "
+        "elsewhere; the summary says which were retried.")
     g.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="the Dask scheduler, e.g. tcp://10.0.0.5:8786 (default: local processes)")
     g.add_argument("--cache", type=Path, default=None, metavar="DIR",
                    help="registrations by content (the scan's bytes, the reference, every setting and heuristic, "
                         "hortishape's version), shared between builds: found there, a registration is not redone "
                         "(default: only this build's OUT, from which an interrupted build resumes)")
-    _add_landmarks(p)
-    _add_scale(p)
-    _add_registration_options(p)
-    p.set_defaults(run=_run_build)
 
 
 def _print_build(result) -> None:
@@ -566,15 +571,7 @@ def _add_update(sub) -> None:
     p.add_argument("model_dir", type=Path, metavar="MODEL_DIR", help="a folder 'hortishape build' wrote")
     p.add_argument("input_dir", type=Path, metavar="NEW_SCANS", help="folder of the new scans (meshes or volumes)")
     p.add_argument("--out", type=Path, required=True, metavar="OUT", help="the updated model's folder")
-    p.add_argument("--jobs", type=_positive_int, default=None, metavar="J",
-                   help="parallel registrations (default: all cores)")
-    p.add_argument("--strict", action="store_true", help="stop at the first bad scan instead of skipping it")
-    p.add_argument("--spacing", type=_positive_float, nargs=3, default=None, metavar=("SX", "SY", "SZ"),
-                   help="voxel size along x, y, z in mm for the volumes in NEW_SCANS")
-    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                   help="run the registrations on this Dask cluster (as 'hortishape build --scheduler')")
-    p.add_argument("--cache", type=Path, default=None, metavar="DIR",
-                   help="registrations by content, shared between builds (as 'hortishape build --cache')")
+    _add_batch_options(p, "NEW_SCANS")
     _add_scale(p)
     _add_registration_options(p)
     p.set_defaults(run=_run_update)

@@ -814,8 +814,7 @@ def build_model(
 
     seconds = time.perf_counter() - start
     summary = {
-        "units": {"unit": "mm", "scale": scale, "extent_mm": {c.path: c.extent for c in checks if c.ok},
-                  "plausible_extent_mm": list(PLAUSIBLE_EXTENT_MM)},
+        "units": _units_summary(checks, scale),
         "input_dir": str(input_dir),
         "reference": str(ref_path),
         "n_points": template.mesh.n_vertices,
@@ -827,13 +826,7 @@ def build_model(
         "orientation_check": rechecked,
         "uncertain_orientation": [{"name": n, "confidence": c} for n, c in uncertain],
         "second_pass": [asdict(r) for r in second],
-        "procrustes": {"scaling": scaling, "iterations": int(gpa.n_iter)},
-        "model": {
-            "n_modes": int(model.n_components_),
-            "variances_mm2": model.explained_variance_.tolist(),
-            "explained_variance_ratio": model.explained_variance_ratio_.tolist(),
-        },
-        "seconds": seconds,
+        **_model_summary(model, gpa, scaling, seconds),
     }
     atomic_text(layout.summary, json.dumps(_jsonable(summary), indent=1), HortishapeError)
     return BuildResult(out, model_path, str(ref_path), tuple(names), tuple(skipped), tuple(first),
@@ -1143,8 +1136,7 @@ def update_model(
     shift = float(np.sqrt(((model.mean_ - old_model.mean_) ** 2).sum(axis=1).mean()))
     seconds = time.perf_counter() - start
     summary = {
-        "units": {"unit": "mm", "scale": scale, "extent_mm": {c.path: c.extent for c in checks if c.ok},
-                  "plausible_extent_mm": list(PLAUSIBLE_EXTENT_MM)},
+        "units": _units_summary(checks, scale),
         "input_dir": str(input_dir),
         "reference": f"the mean of {src.model}",
         "n_points": model.n_points_,
@@ -1163,6 +1155,21 @@ def update_model(
         "first_pass": [],
         "second_pass": [asdict(r) for r in added],
         "uncertain_orientation": [],
+        **_model_summary(model, gpa, scaling, seconds),
+    }
+    atomic_text(layout.summary, json.dumps(_jsonable(summary), indent=1), HortishapeError)
+    return BuildResult(layout.root, layout.model, f"the mean of {src.model}", tuple(names), tuple(skipped), (),
+                       tuple(added), model.explained_variance_, model.n_points_, seconds, ())
+
+
+def _units_summary(checks, scale: float) -> dict:
+    return {"unit": "mm", "scale": scale, "extent_mm": {c.path: c.extent for c in checks if c.ok},
+            "plausible_extent_mm": list(PLAUSIBLE_EXTENT_MM)}
+
+
+def _model_summary(model, gpa, scaling: bool, seconds: float) -> dict:
+    """The end of ``summary.json``: Procrustes, the model's variances, the time."""
+    return {
         "procrustes": {"scaling": scaling, "iterations": int(gpa.n_iter)},
         "model": {
             "n_modes": int(model.n_components_),
@@ -1171,9 +1178,6 @@ def update_model(
         },
         "seconds": seconds,
     }
-    atomic_text(layout.summary, json.dumps(_jsonable(summary), indent=1), HortishapeError)
-    return BuildResult(layout.root, layout.model, f"the mean of {src.model}", tuple(names), tuple(skipped), (),
-                       tuple(added), model.explained_variance_, model.n_points_, seconds, ())
 
 
 def _need_three(paths: Sequence, input_dir) -> None:
