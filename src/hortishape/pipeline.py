@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import time
 import traceback
 import warnings
@@ -209,8 +208,6 @@ def _init_worker(template: Template, config: RegistrationConfig, fingerprint: st
                  reference_landmarks: dict | None = None) -> None:
     _WORKER.update(template=template, config=config, fingerprint=fingerprint, scale=scale,
                    reference_landmarks=reference_landmarks)
-    # numpy/BLAS threads would fight the other workers for the cores
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 
 def _result_from_log(log: dict, source: Path, *, resumed: bool) -> InstanceResult:
