@@ -653,7 +653,11 @@ class ShapeModel:
         >>> bool(np.array_equal(ShapeModel.load(path).components_, model.components_))
         True
         """
-        data = read_model(path)
+        return cls._from_data(read_model(path))
+
+    @classmethod
+    def _from_data(cls, data: ModelData) -> "ShapeModel":
+        """A fitted model from what a model file holds (:func:`hortishape.statismo.read_model`)."""
         model = cls(n_components=data.n_components, procrustes=data.procrustes)
         model._set_fitted(
             mean=data.mean,

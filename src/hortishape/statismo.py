@@ -27,7 +27,7 @@ from __future__ import annotations
 import json
 import os
 import uuid
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -425,7 +425,9 @@ class ModelData:
 
     ``mean`` ``(n, 3)``, ``components`` ``(k, 3n)`` (orthonormal rows),
     ``variances`` ``(k,)``; ``scores`` ``(N, k)`` in standard deviations;
-    ``n_components`` and ``procrustes`` are the model's parameters.
+    ``n_components`` and ``procrustes`` are the model's parameters;
+    ``provenance`` what a file read says of who wrote it and when
+    (``{"written by": ..., "build time": ...}``, as far as it says).
     """
 
     mean: np.ndarray
@@ -440,6 +442,7 @@ class ModelData:
     procrustes_transforms: np.ndarray | None = None
     n_components: object = None
     procrustes: bool = False
+    provenance: dict = field(default_factory=dict)
 
 
 def _version() -> str:
@@ -547,6 +550,8 @@ def model_tree(data: ModelData, *, build_time: str | None = None) -> H5Tree:
 def model_provenance(path: str | os.PathLike) -> dict:
     """Who wrote a model file and when, as far as the file says: ``{"written by": ..., "build time": ...}``.
 
+    The same as ``read_model(path).provenance``.
+
     Examples
     --------
     >>> import tempfile
@@ -555,8 +560,10 @@ def model_provenance(path: str | os.PathLike) -> dict:
     >>> model_provenance(path)["written by"].startswith("hortishape")
     True
     """
-    tree = read_tree(path)
+    return read_model(path).provenance
 
+
+def _provenance(tree: H5Tree) -> dict:
     def text(key):
         value = tree.datasets.get(key)
         if isinstance(value, list) and len(value) == 1:
@@ -592,9 +599,8 @@ def read_model(path: str | os.PathLike) -> ModelData:
     p = Path(path)
     tree = read_tree(p)
     try:
-        if "/hortishape" in tree.groups:
-            return _from_hortishape(tree, p)
-        return _from_statismo(tree, p)
+        data = _from_hortishape(tree, p) if "/hortishape" in tree.groups else _from_statismo(tree, p)
+        return replace(data, provenance=_provenance(tree))
     except (KeyError, ValueError, TypeError) as exc:
         raise HortishapeError(f"{p}: unusable model file ({exc})") from None
 

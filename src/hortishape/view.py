@@ -368,7 +368,7 @@ def view_model(
     (3, True)
     """
     from .layout import ModelDir
-    from .statismo import model_provenance
+    from .statismo import read_model
 
     src = Path(source)
     if src.is_dir():
@@ -379,11 +379,11 @@ def view_model(
     else:
         model_path = src
         layout = ModelDir(src.parent)
-    model = ShapeModel.load(model_path)
+    data = read_model(model_path)  # the file read once: the model and what it says of its origin
+    model = ShapeModel._from_data(data)
     if model.faces_ is None:
         raise HortishapeError(f"{model_path}: a point-set model (no triangles) cannot be drawn as a surface")
-    provenance = {"model file": str(model_path.resolve())}
-    provenance.update(model_provenance(model_path))
+    provenance = {"model file": str(model_path.resolve()), **data.provenance}
     is_this_build = layout.model.resolve() == model_path.resolve() and layout.summary.is_file()
     values = None
     marks = None
