@@ -142,6 +142,38 @@ def test_float_and_int_n_components():
         ShapeModel(5).fit(shapes)
 
 
+def test_pca_in_column_blocks_equals_the_whole(monkeypatch):
+    # blocks of 7 columns (the last one shorter) against one block of all 180
+    shapes, _, _ = _known_population(n_shapes=30, sigmas=(4.0, 3.0, 2.0, 1.0, 0.5))
+    whole = ShapeModel().fit(shapes)
+    monkeypatch.setattr("hortishape.model._BLOCK_COLUMNS", 7)
+    blocks = ShapeModel().fit(shapes)
+    np.testing.assert_allclose(blocks.explained_variance_, whole.explained_variance_, rtol=1e-11)
+    np.testing.assert_allclose(blocks.components_, whole.components_, atol=1e-11)
+    np.testing.assert_allclose(blocks.scores_, whole.scores_, atol=1e-9)
+    # asking for two modes forms only two, equal to the leading two of all
+    two = ShapeModel(2).fit(shapes)
+    np.testing.assert_allclose(two.components_, whole.components_[:2], atol=1e-11)
+    np.testing.assert_allclose(two.scores_, whole.scores_[:, :2], atol=1e-9)
+
+
+def test_fit_holds_no_copy_of_the_shapes():
+    # the "never an N x 3n dense copy": 200 shapes of 10,000 points
+    # (48 MB); a centred copy alone would double that
+    import tracemalloc
+
+    rng = np.random.default_rng(5)
+    base = rng.normal(size=(10_000, 3)) * 40.0
+    shapes = base + rng.normal(size=(200, 10_000, 3))
+    tracemalloc.start()
+    try:
+        ShapeModel(10).fit(shapes)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 0.5 * shapes.nbytes
+
+
 @pytest.mark.parametrize("bad", [0, -2, 0.0, 1.5, True, "all", [3]])
 def test_bad_n_components(bad):
     shapes, _, _ = _known_population(n_shapes=10)

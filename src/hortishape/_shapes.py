@@ -20,8 +20,12 @@ from .mesh import Mesh
 # --------------------------------------------------------------------------
 
 
-def as_shapes(shapes, *, name: str = "shapes", allow_single: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
+def as_shapes(shapes, *, name: str = "shapes", allow_single: bool = False,
+              copy: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
     """``(N, n, 3)`` float64 copy of ``shapes`` and the common faces of Mesh input.
+
+    With ``copy=False`` a float64 array is returned as it is (for callers
+    that only read it: a copy of a thousand shapes is as large as they are).
 
     ``shapes`` is an ``(N, n, 3)`` array, a sequence of ``(n, 3)`` arrays or
     a sequence of :class:`Mesh` (which must all have the same faces). With
@@ -56,7 +60,7 @@ def as_shapes(shapes, *, name: str = "shapes", allow_single: bool = False) -> tu
                 "number of corresponding points"
             )
     try:
-        x = np.array(shapes, dtype=np.float64)
+        x = np.array(shapes, dtype=np.float64) if copy else np.asarray(shapes, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise MeshError(f"{name} must be a numeric array of shape (N, n, 3) ({exc})") from None
     if allow_single and x.ndim == 2:

@@ -782,15 +782,18 @@ def build_model(
     )
 
     # the second pass: the mean of the first pass as an unbiased template
-    shapes = np.stack([read_mesh(first_files[p]).vertices for p in good])
-    gpa1 = generalized_procrustes(shapes, scaling=scaling)
-    template2 = prepare_reference(Mesh(gpa1.mean, template.mesh.faces), None)
+    # only the mean and the transforms are kept: a thousand scans' surfaces
+    # are a gigabyte at the paper's 30,000 vertices
+    gpa1 = generalized_procrustes(np.stack([read_mesh(first_files[p]).vertices for p in good]), scaling=scaling)
+    first_mean, first_transforms = gpa1.mean, gpa1.transforms
+    del gpa1
+    template2 = prepare_reference(Mesh(first_mean, template.mesh.faces), None)
     # The mean lies in the Procrustes frame, where each first-pass surface was
     # moved by its transform: the inverse places the mean on that scan exactly
     # as the first pass found it, so the second pass does not search the
     # orientation again (a mean is rounder than any one scan, and harder to
     # orient).
-    starts = [np.linalg.inv(t) for t in gpa1.transforms]
+    starts = [np.linalg.inv(t) for t in first_transforms]
     mean_marks = None
     if ref_marks is not None:  # the mean's vertices that the first reference's marks were nearest
         from scipy.spatial import cKDTree
@@ -805,8 +808,8 @@ def build_model(
     names = [p.stem for p in good]
     uncertain = tuple((Path(r.source).stem, r.orientation_confidence) for r in first
                       if r.ok and Path(r.source).stem in names and r.orientation_confidence < UNCERTAIN_CONFIDENCE)
-    shapes = np.stack([read_mesh(layout.registered_mesh(n)).vertices for n in names])
-    model, gpa = _align_and_fit(layout, names, shapes, template2.mesh.faces, scaling=scaling, n_modes=n_modes)
+    model, gpa = _align_and_fit(layout, names, np.stack([read_mesh(layout.registered_mesh(n)).vertices for n in names]),
+                                template2.mesh.faces, scaling=scaling, n_modes=n_modes)
     model_path = layout.model
 
     seconds = time.perf_counter() - start
@@ -1010,6 +1013,8 @@ def _align_and_fit(layout: ModelDir, names, shapes: np.ndarray, faces, *, scalin
     from .procrustes import generalized_procrustes
 
     gpa = generalized_procrustes(shapes, scaling=scaling)
+    # a caller that passed the shapes unnamed frees them here: only the aligned copy is needed from now on
+    del shapes
     layout.aligned.mkdir(parents=True, exist_ok=True)
     for name, aligned in zip(names, gpa.aligned):
         write_mesh(layout.aligned_mesh(name), aligned, faces)
