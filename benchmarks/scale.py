@@ -19,11 +19,16 @@ Then it fits time and memory against N (least squares) and prints the
 figures for 1,000 scans extrapolated from the slope, with the command that
 measures them on a machine that has the time.
 
+With ``--pca N``, it only times the model's PCA (:meth:`ShapeModel.fit`) on
+N random shapes of ``--points`` points, with every mode and with 20, and
+prints its peak memory beyond the shapes (tracemalloc).
+
 Run::
 
     python benchmarks/scale.py                                  # 50 100 200 400, 2 workers
     python benchmarks/scale.py --sizes 50 100 --compare-upto 100 --kill 100
     python benchmarks/scale.py --sizes 1000 --workers 16        # a larger machine
+    python benchmarks/scale.py --pca 1000                       # the PCA alone
 """
 
 from __future__ import annotations
@@ -140,6 +145,29 @@ def compare(a_path: str, b_path: str) -> tuple[float, float]:
     return mean, var
 
 
+def pca_cost(n_shapes: int, n_points: int) -> None:
+    """Seconds and peak memory beyond the shapes of :meth:`ShapeModel.fit`, every mode and 20."""
+    import tracemalloc
+
+    from hortishape.model import ShapeModel
+
+    rng = np.random.default_rng(0)
+    base = rng.normal(size=(n_points, 3)) * 40.0
+    modes = rng.normal(size=(30, 3 * n_points)) * np.linspace(3.0, 0.1, 30)[:, None] / np.sqrt(n_points)
+    shapes = base + (rng.normal(size=(n_shapes, 30)) @ modes).reshape(n_shapes, n_points, 3)
+    shapes += 0.01 * rng.normal(size=shapes.shape)
+    print(f"PCA of {n_shapes} shapes of {n_points} points ({shapes.nbytes / 1e6:.0f} MB):")
+    for k in (None, 20):
+        tracemalloc.start()
+        t = time.perf_counter()
+        model = ShapeModel(n_components=k).fit(shapes)
+        seconds = time.perf_counter() - t
+        peak = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+        print(f"  {'every mode' if k is None else f'{k} modes':>10}: {seconds:6.2f} s, peak {peak / 1e6:5.0f} MB "
+              f"beyond the shapes (the modes kept: {model.components_.nbytes / 1e6:.0f} MB)")
+
+
 def main(argv=None) -> int:
     if argv is None and len(sys.argv) > 1 and sys.argv[1] == "--one":
         _, _, scans, out, points, scheduler, kill = sys.argv
@@ -155,7 +183,12 @@ def main(argv=None) -> int:
     ap.add_argument("--kill", type=int, default=None, metavar="N",
                     help="build N scans (one of --sizes) again with a worker killed half-way through the first pass")
     ap.add_argument("--work", type=Path, default=None, help="scratch folder (default: a temporary one)")
+    ap.add_argument("--pca", type=int, default=None, metavar="N",
+                    help="only time the PCA of N random shapes of --points points")
     args = ap.parse_args(argv)
+    if args.pca:
+        pca_cost(args.pca, args.points)
+        return 0
 
     from hortishape import synth
 
