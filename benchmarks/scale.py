@@ -7,7 +7,9 @@ them (``dask scheduler``, ``dask worker --nthreads 1``; restarted before each
 size so their peak memory is that size's), and prints:
 
 - seconds per instance (wall time of the build over N) and the build's stages;
-- the peak memory (RSS) of each worker and of the process that ran the build;
+- the peak memory (RSS) of each worker and of the process that ran the build
+  (the workers run without Dask's statistical profiler unless
+  ``--dask-profile``: its history grows them for their first 1,000 seconds);
 - with ``--compare-upto M``: for N <= M, the same build on local processes,
   and how far apart the two models are (mean: largest vertex distance, mm;
   variances: largest relative difference);
@@ -56,16 +58,26 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def _dask(*args, log):
+def _dask(*args, log, profile: bool = True):
     exe = shutil.which("dask", path=str(Path(sys.executable).parent)) or shutil.which("dask")
     env = dict(os.environ, OMP_NUM_THREADS="1", PYTHONPATH=os.pathsep.join(sys.path))
+    if not profile:
+        env["DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED"] = "False"
     return subprocess.Popen([exe, *args], stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True)
 
 
 class Cluster:
-    """A scheduler and ``n`` one-thread workers, each its own process group."""
+    """A scheduler and ``n`` one-thread workers, each its own process group.
 
-    def __init__(self, n_workers: int, log_path: Path):
+    ``profile=False`` starts the workers without Dask's statistical profiler
+    (``DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED=False``): it keeps a
+    snapshot of the running tasks' stacks for each second of the last
+    ``distributed.admin.low-level-log-length`` (1,000), which with tasks a
+    second long grew each worker by about 0.3 MB per task until the history
+    was full.
+    """
+
+    def __init__(self, n_workers: int, log_path: Path, *, profile: bool = True):
         from distributed import Client
 
         self.log = open(log_path, "a")
@@ -74,7 +86,7 @@ class Cluster:
         self.scheduler = _dask("scheduler", "--host", "127.0.0.1", "--port", str(port), "--dashboard-address", ":0",
                                log=self.log)
         self.workers = [_dask("worker", self.address, "--nthreads", "1", "--name", f"w{i}",
-                              "--dashboard-address", ":0", log=self.log) for i in range(n_workers)]
+                              "--dashboard-address", ":0", log=self.log, profile=profile) for i in range(n_workers)]
         self.client = Client(self.address, timeout="60s")
         self.client.wait_for_workers(n_workers, timeout=120)
 
@@ -183,6 +195,8 @@ def main(argv=None) -> int:
     ap.add_argument("--kill", type=int, default=None, metavar="N",
                     help="build N scans (one of --sizes) again with a worker killed half-way through the first pass")
     ap.add_argument("--work", type=Path, default=None, help="scratch folder (default: a temporary one)")
+    ap.add_argument("--dask-profile", action="store_true",
+                    help="keep Dask's statistical profiler on in the workers (as `dask worker` starts them)")
     ap.add_argument("--pca", type=int, default=None, metavar="N",
                     help="only time the PCA of N random shapes of --points points")
     args = ap.parse_args(argv)
@@ -200,7 +214,7 @@ def main(argv=None) -> int:
         t = time.perf_counter()
         synth.write_population("apple", n_max, scans_all, random_state=1, pose="random", n_vertices=8000)
         print(f"made {n_max} synthetic apples in {time.perf_counter() - t:.0f} s ({scans_all})")
-    cluster = Cluster(args.workers, work / "dask.log")
+    cluster = Cluster(args.workers, work / "dask.log", profile=args.dask_profile)
     rows = []
     try:
         print(f"{'N':>5} {'s/instance':>10} {'build s':>8} {'worker peak MB':>16} {'build process MB':>17}"
