@@ -210,13 +210,13 @@ class ShapeModel:
         mean = flat.mean(axis=0)  # eq. 9
         # an integer asks for that many modes: only they are formed
         max_modes = n_comp if isinstance(n_comp, int) else None
-        components, variances, total = _pca(flat, mean, max_modes=max_modes)
+        components, variances, total, projections = _pca(flat, mean, max_modes=max_modes)
         scale2 = float(np.einsum("i,i->", mean, mean)) / mean.size + 1.0
         if total <= 1e-24 * scale2:
             raise MeshError("the training shapes are all the same: there is no variation to model")
         if len(variances) == 0:  # pragma: no cover - total > 0 implies one mode
             raise MeshError("the training shapes do not vary")
-        components = _flip_signs(components, mean.reshape(-1, 3))
+        signs = _flip_signs(components, mean.reshape(-1, 3))
 
         rank = len(variances)
         if n_comp is None:
@@ -243,10 +243,7 @@ class ShapeModel:
             scores=None,
             procrustes_transforms=transforms,
         )
-        scores = np.zeros((n_shapes, k))
-        for cols, xb in _column_blocks(flat, mean):
-            scores += xb @ self.components_[:, cols].T
-        self.scores_ = scores / np.sqrt(self.explained_variance_)
+        self.scores_ = projections[:, :k] * signs[:k] / np.sqrt(self.explained_variance_)
         return self
 
     def _set_fitted(self, *, mean, components, variances, total_variance, n_samples, faces, names, scores,
@@ -942,6 +939,12 @@ def _check_names(names, n: int) -> tuple[str, ...]:
     return tuple(str(s) for s in names)
 
 
+def _column_slices(d: int):
+    """Slices of ``_BLOCK_COLUMNS`` columns covering ``d``."""
+    for j in range(0, d, _BLOCK_COLUMNS):
+        yield slice(j, j + _BLOCK_COLUMNS)
+
+
 def _column_blocks(x: np.ndarray, mean: np.ndarray):
     """``(columns, x[:, columns] - mean[columns])`` for blocks of ``_BLOCK_COLUMNS`` columns.
 
@@ -949,13 +952,17 @@ def _column_blocks(x: np.ndarray, mean: np.ndarray):
     is ever held: the products below stay exact (no cancellation against a
     large mean) at the cost of one ``N x _BLOCK_COLUMNS`` block.
     """
-    for j in range(0, x.shape[1], _BLOCK_COLUMNS):
-        cols = slice(j, j + _BLOCK_COLUMNS)
+    for cols in _column_slices(x.shape[1]):
         yield cols, x[:, cols] - mean[cols]
 
 
-def _pca(x: np.ndarray, mean: np.ndarray, *, max_modes: int | None = None) -> tuple[np.ndarray, np.ndarray, float]:
-    """Orthonormal modes ``(r, d)``, variances ``(r,)`` and total variance of the rows of ``x (N, d)`` about ``mean``.
+def _pca(x: np.ndarray, mean: np.ndarray, *,
+         max_modes: int | None = None) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
+    """Modes ``(r, d)``, variances ``(r,)``, total variance and projections ``(N, r)`` of the rows of ``x`` about ``mean``.
+
+    The projections are the centred rows' coordinates along the modes (mm),
+    a by-product of the last step: the scores need no further pass over the
+    data.
 
     Eqs. 10-12 without the centred ``N x d`` matrix: the Gram matrix is
     accumulated over column blocks, the modes are formed directly as rows,
@@ -973,7 +980,7 @@ def _pca(x: np.ndarray, mean: np.ndarray, *, max_modes: int | None = None) -> tu
     lam, u = np.linalg.eigh(gram)  # eq. 11 (symmetric: SVD == eigendecomposition)
     lam, u = lam[::-1], u[:, ::-1]
     if lam[0] <= 0:
-        return np.zeros((0, d)), np.zeros(0), total
+        return np.zeros((0, d)), np.zeros(0), total, np.zeros((n, 0))
     rank = min(int(np.count_nonzero(lam > _RANK_RTOL * lam[0])), n - 1)
     r = rank if max_modes is None else min(rank, max_modes)
     a = u[:, :r] / np.sqrt((n - 1) * lam[:r])
@@ -982,8 +989,8 @@ def _pca(x: np.ndarray, mean: np.ndarray, *, max_modes: int | None = None) -> tu
         phi[:, cols] = a.T @ xb
 
     def left_multiply(m: np.ndarray) -> None:
-        for j in range(0, d, _BLOCK_COLUMNS):
-            phi[:, j : j + _BLOCK_COLUMNS] = m @ phi[:, j : j + _BLOCK_COLUMNS]
+        for cols in _column_slices(d):
+            phi[:, cols] = m @ phi[:, cols]
 
     # Rayleigh-Ritz refinement inside span(phi): an orthonormal basis by
     # symmetric orthogonalisation (phi is already nearly orthonormal, so this
@@ -998,15 +1005,18 @@ def _pca(x: np.ndarray, mean: np.ndarray, *, max_modes: int | None = None) -> tu
     p = np.zeros((n, r))
     for cols, xb in _column_blocks(x, mean):
         p += xb @ phi[:, cols].T
-    _, s, vt = np.linalg.svd(p, full_matrices=False)
+    u_p, s, vt = np.linalg.svd(p, full_matrices=False)
     lam = s**2 / (n - 1)
     keep = int(np.count_nonzero(lam > _RANK_RTOL * lam[0]))
-    left_multiply(vt)
-    return (phi if keep == r else phi[:keep].copy()), lam[:keep], total
+    left_multiply(vt)  # the modes: vt @ phi, so the rows' projections onto them are p @ vt.T = u_p * s
+    return (phi if keep == r else phi[:keep].copy()), lam[:keep], total, (u_p * s)[:, :keep]
 
 
 def _flip_signs(components: np.ndarray, mean: np.ndarray) -> np.ndarray:
-    """Deterministic signs, set in place: + grows the mean about its centroid, else largest entry positive."""
+    """Deterministic signs, set in place: + grows the mean about its centroid, else largest entry positive.
+
+    Returns the signs applied (one per mode).
+    """
     growth = (mean - mean.mean(axis=0)).reshape(-1)
     norm = np.linalg.norm(growth)
     cos = components @ growth / norm if norm > 0 else np.zeros(len(components))
@@ -1019,4 +1029,4 @@ def _flip_signs(components: np.ndarray, mean: np.ndarray) -> np.ndarray:
     sign = np.where(np.abs(cos) >= _GROWTH_COS_MIN, np.sign(cos), np.sign(big))
     sign[sign == 0] = 1.0
     components *= sign[:, None]  # in place: with every mode kept they are as large as the data
-    return components
+    return sign
