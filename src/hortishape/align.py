@@ -413,6 +413,10 @@ SYMMETRY_TURNS = (2 * np.pi / 7, 4 * np.pi / 7, 6 * np.pi / 7)
 #: Half-angle (degrees) of the cone about each end of the axis, seen from the
 #: centroid, in which :func:`fruit_axis` looks for a cavity.
 END_CONE = 30.0
+#: On an elongated fruit (``ELONGATED_VARIANCE``) only the part of each end's
+#: cone closer to the axis than this fraction of the cone's surface's median
+#: distance from it counts (not the concave side of a bend).
+END_RADIUS = 0.5
 #: A surface point counts as lying in a cavity when it is this far below the
 #: convex hull, in units of the surface's rms radius (2 mm on an 80 mm
 #: apple: deeper than scanner noise, shallower than any stalk cavity).
@@ -665,10 +669,18 @@ def fruit_axis(
     deep = _hull_depth(hull_points, q) / scale > CAVITY_DEPTH
 
     def oriented(axis: np.ndarray, symmetry: float) -> FruitAxis:
-        # the ends: surface in a cavity within END_CONE of each end
-        along = q @ axis / np.maximum(np.linalg.norm(q, axis=1), 1e-12)
+        s = q @ axis
+        # within END_CONE of each end, seen from the centroid
+        along = s / np.maximum(np.linalg.norm(q, axis=1), 1e-12)
         cone = np.cos(np.radians(END_CONE))
-        ends = np.array([np.mean(deep & (along > cone)), np.mean(deep & (along < -cone))])
+        near = [along > cone, along < -cone]
+        if elongated:
+            # from the centroid of a long fruit the cone reaches back along
+            # its sides, where the concave side of a bend lies below the
+            # hull: only the part near the axis counts there
+            off = np.linalg.norm(q - np.outer(s, axis), axis=1)
+            near = [n & (off < END_RADIUS * np.median(off[n])) if n.any() else n for n in near]
+        ends = np.array([np.mean(deep & near[0]), np.mean(deep & near[1])])
         if ends[1] > ends[0]:
             axis, ends = -axis, ends[::-1]
         total = ends.sum()
