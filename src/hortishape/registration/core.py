@@ -12,7 +12,7 @@ import numpy as np
 from ..align import apply_transform, rigid_fit
 from ..errors import ConvergenceWarning, MeshError
 from ..mesh import Mesh
-from .config import LANDMARK_SPREAD, UNCOVERED_EDGES, UNCOVERED_MAX, RegistrationConfig
+from .config import LANDMARK_SPREAD, UNCOVERED_EDGES, UNCOVERED_GAIN, UNCOVERED_MAX, RegistrationConfig
 from .correspondences import TargetSurface, _landmark_pairs, _nearest_vertices, _uncovered_fraction, prepare_target
 from .elastic import _deform, _land, _rigid_part
 from .folds import _repair_folds
@@ -193,10 +193,10 @@ def register(
         if uncovered > UNCOVERED_MAX:
             # a part of the scan the registered surface does not reach (its
             # stalk, when the reference came out upside down): try the best
-            # candidate turned well away from this one and keep the one that
-            # covers more (see ``coverage_check``)
+            # candidate turned well away from this one and keep it if it
+            # covers clearly more (see ``coverage_check``)
             alt = run(_refined_start(template, tgt, orient.alternative, cfg, plan), orient.alternative_index)
-            if _uncovered_fraction(alt, tgt, UNCOVERED_EDGES * fine.edge_length) < uncovered:
+            if _uncovered_fraction(alt, tgt, UNCOVERED_EDGES * fine.edge_length) <= UNCOVERED_GAIN * uncovered:
                 reg = alt
             reg = replace(reg, seconds=time.perf_counter() - t_start)
     return reg
