@@ -65,17 +65,18 @@ def _synth_digest() -> str:
     return hashlib.sha256(Path(synth.__file__).read_bytes()).hexdigest()[:10]
 
 
-def make_cases(product, pose, n, cache: Path, family: str = "standard", seed: int = 1000):
+def make_cases(product, pose, n, cache: Path, family: str = "standard", seed: int = 1000, noise: float = 0.0):
     """Synthetic instances saved as npz (so the worker's memory is only the registration's)."""
     from hortishape import synth
 
     out = []
     digest = _synth_digest()
     tag = "" if (family, seed) == ("standard", 1000) else f"{family}_{seed}_"
+    tag += f"noise{noise:g}_" if noise > 0 else ""
     for i in range(n):
         fn = cache / f"{product}_{pose}_{tag}{i}_{digest}.npz"
         if not fn.exists():
-            inst = synth.make_instance(product, random_state=seed + i, pose=pose, family=family)
+            inst = synth.make_instance(product, random_state=seed + i, pose=pose, family=family, noise=noise)
             np.savez(
                 fn,
                 v=inst.mesh.vertices,
@@ -265,6 +266,9 @@ def main(argv=None):
                     help="shape family (synth.PRODUCTS[product].families); the non-standard ones and seeds "
                          "other than 1000 were never used for tuning: the held-out test set")
     ap.add_argument("--seed", type=int, default=1000, help="instance i is made with seed SEED + i")
+    ap.add_argument("--noise", type=float, default=0.0,
+                    help="scanner noise of the targets, mm (standard deviation along the normals; the truth is "
+                         "the noise-free surface's)")
     ap.add_argument("--cache", default=os.environ.get("HORTISHAPE_BENCH_CACHE", "/tmp/hortishape-bench"))
     ap.add_argument("--json", help="write all figures to this file")
     ap.add_argument(
@@ -290,7 +294,7 @@ def main(argv=None):
     print(f"family {args.family}, instances made with seeds {args.seed}..{args.seed + args.n - 1}", flush=True)
     for product in args.products:
         for pose in args.poses:
-            files = make_cases(product, pose, args.n, cache, args.family, args.seed)
+            files = make_cases(product, pose, args.n, cache, args.family, args.seed, args.noise)
             # a fresh process per class: its peak RSS is the registration's
             with ProcessPoolExecutor(1, mp_context=get_context("spawn")) as pool:
                 nb = args.baseline if pose in args.baseline_poses else 0
