@@ -165,6 +165,15 @@ def test_up_option_reaches_the_configuration_and_its_help_states_the_tolerance()
     assert _registration_config(sub.parse_args(["ref.ply", "a.ply", "--out", "o"])).up is None
 
 
+def test_tolerance_options_reach_the_configuration():
+    from hortishape.cli import _registration_config
+
+    sub = _subparsers()["register"]
+    cfg = _registration_config(sub.parse_args(["ref.ply", "a.ply", "--out", "o", "--edge-tolerance", "0.005"]))
+    assert (cfg.tolerance, cfg.edge_tolerance) == (1e-3, 0.005)
+    assert _registration_config(sub.parse_args(["ref.ply", "a.ply", "--out", "o"])).edge_tolerance == 1e-3
+
+
 def test_convert_and_sample_take_a_model_scalismo_wrote(tmp_path, capsys):
     from pathlib import Path
 

@@ -147,6 +147,23 @@ def test_iteration_cap_warns(template, dense):
     assert not reg.converged and len(reg.log) == 4  # 3 + the closing step
 
 
+def test_edge_tolerance_ends_the_iterations_on_a_noisy_scan(template, dense):
+    # with noise d_t keeps falling as the surface fits it: the relative test
+    # alone runs on, a change below a fraction of an edge ends it sooner
+    rng = np.random.default_rng(3)
+    n = vertex_normals(dense.vertices, dense.faces)
+    noisy = Mesh(dense.vertices + n * rng.normal(0.0, 0.1, (len(n), 1)), dense.faces)
+    runs = {}
+    for tol in (1e-3, 0.02):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", ConvergenceWarning)
+            runs[tol] = register(template, noisy, RegistrationConfig(orientation="none", edge_tolerance=tol))
+    assert len(runs[0.02].log) < len(runs[1e-3].log)
+    # both sit on the noise-free surface within the noise
+    d = [closest_points(dense, r.vertices).distances.mean() for r in runs.values()]
+    assert max(d) < 0.1 and abs(d[0] - d[1]) < 0.02, d
+
+
 def test_bad_inputs(template, dense):
     open_mesh = Mesh(dense.vertices, dense.faces[50:])
     with pytest.raises(MeshError, match="not closed"):

@@ -160,6 +160,14 @@ class RegistrationConfig:
         Correspondence filter (c) against the reference itself.
     tolerance : float, default: 0.001
         Convergence: ``|d_t - d_(t-1)| / d_t < tolerance`` at ``beta_end``.
+    edge_tolerance : float, default: 0.001
+        Convergence also when ``|d_t - d_(t-1)|`` is below this many edge
+        lengths of the reference: once the surface sits on the target, d_t
+        keeps falling and the relative test alone may never pass. On a scan
+        with noise it falls by about a tenth per iteration as the surface
+        fits the noise, so the iterations run on to ``max_iterations``;
+        0.005 ends them sooner at the cost of a little of the stalk tip's
+        landing (measurements: ``docs/design-notes.md``).
     max_iterations : int, default: 50
         Cap on the total number of iterations (schedule + convergence).
     orientation : {"axis", "search", "pca", "none"}, default: "axis"
@@ -224,8 +232,9 @@ class RegistrationConfig:
         above ``UNCOVERED_MAX`` (1 %) part of the scan was not reached (its
         stalk, when the reference came out upside down), and the
         registration is run again from the best search candidate turned by
-        more than ``ALTERNATIVE_TURN`` (45) degrees from the chosen one; the
-        result that leaves less uncovered is kept. Costs a nearest-vertex
+        more than ``ALTERNATIVE_TURN`` (45) degrees from the chosen one, and
+        kept if it leaves at most ``UNCOVERED_GAIN`` (half) as much
+        uncovered. Costs a nearest-vertex
         query, and a second registration when it fires.
     up : (3,) tuple of float, optional
         The reference and every target stand with the stalk towards this
@@ -295,6 +304,7 @@ class RegistrationConfig:
     distance_floor: float = 5.0
     check_crossings: bool = True
     tolerance: float = 1e-3
+    edge_tolerance: float = 1e-3
     max_iterations: int = 50
     orientation: str = "axis"
     end_contrast: float = 0.15

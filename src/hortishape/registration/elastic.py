@@ -313,10 +313,10 @@ def _deform(template: Template, target: TargetSurface, base_c: np.ndarray, base_
         it += 1
         if it >= len(betas) and np.isfinite(prev_d):
             change = abs(d_t - prev_d)
-            # the paper's relative test, or a change below `tolerance` edge
-            # lengths: once the surface sits on the target d_t keeps halving
+            # the paper's relative test, or a change below `edge_tolerance`
+            # edge lengths: once the surface sits on the target d_t keeps halving
             # and the relative test alone would never pass
-            if change < cfg.tolerance * d_t or change < cfg.tolerance * fine.edge_length:
+            if change < cfg.tolerance * d_t or change < cfg.edge_tolerance * fine.edge_length:
                 converged = True
                 break
         prev_d = d_t
