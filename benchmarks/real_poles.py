@@ -32,25 +32,18 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 import warnings
 from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from othergen import _random_rotation  # noqa: E402  (one uniform rotation for both benchmarks)
+
 DATA = Path(__file__).resolve().parents[1] / "tests" / "data" / "ycb"
 ROUND = ["013_apple", "015_peach", "018_plum", "014_lemon", "017_orange", "016_pear"]
-
-
-def _random_rotation(rng: np.random.Generator) -> np.ndarray:
-    q = rng.normal(size=4)
-    q /= np.linalg.norm(q)
-    w, x, y, z = q
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])
 
 
 def _load(name: str, poles: dict):
