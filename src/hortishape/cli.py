@@ -324,7 +324,7 @@ def _add_registration_options(p) -> None:
     g.add_argument("--edge-tolerance", type=float, default=1e-3, metavar="EDGES",
                    help="or when |d_t - d_(t-1)| falls below this many reference edge lengths (on a noisy "
                         "scan d_t keeps falling by about a tenth per iteration as the surface fits the noise; "
-                        "0.005 made such registrations about a third faster, see the README)")
+                        "0.005 made such registrations about a third faster: docs/design-notes.md)")
     g.add_argument("--orientation", choices=["axis", "search", "pca", "none"], default="axis",
                    help="initial alignment: put the reference's axis of revolution on the scan's, cavity "
                         "(stalk) end on cavity end, and keep the best turn about it after a short elastic "
