@@ -41,13 +41,24 @@ MAX_EDGE = 1.0
 
 @dataclass(frozen=True)
 class Fruit:
-    """One generated fruit in its pose: vertices (n, 3) mm, faces (m, 3), stalk and blossom poles (3,) mm."""
+    """One generated fruit in its pose: vertices (n, 3) mm, faces (m, 3), stalk and blossom poles (3,) mm.
+
+    ``directions`` (n, 3) are the vertices' unit directions in the fruit's own
+    frame (stalk towards +z), where its radial function is defined; ``seed``,
+    ``rotation`` and ``shift`` (the pose) let :func:`surface` find the same
+    directions on another fruit: the dense truth.
+    """
 
     kind: str
     vertices: np.ndarray
     faces: np.ndarray
     stalk: np.ndarray
     blossom: np.ndarray
+    seed: int = 0
+    directions: np.ndarray | None = None
+    rotation: np.ndarray | None = None
+    shift: np.ndarray | None = None
+    half_length: float = 0.0  # the bend's scale (zucchini)
 
 
 def _angle_to(u: np.ndarray, d: np.ndarray) -> np.ndarray:
@@ -183,20 +194,46 @@ def make_fruit(kind: str, seed: int, *, subdivisions: int = 5, pose: str = "rand
     # the poles: where the stalk-free surface meets the stalk's and the blossom's directions
     stalk = stalk_dir * base[int(np.argmax(u @ stalk_dir))]
     blossom = blossom_dir * base[int(np.argmax(u @ blossom_dir))]
+    half_length = float(np.abs(v[:, 2]).max())
     if kind == "zucchini":  # bent in the plane of x
-        L = np.abs(v[:, 2]).max()
-        bend = rng.uniform(0.0, 0.25) * L
-        def bent(p):
-            p = p.copy()
-            p[..., 0] += bend * (p[..., 2] / L) ** 2
-            return p
+        bent = _bend(rng, half_length)
         v, stalk, blossom = bent(v), bent(stalk), bent(blossom)
     # scanner noise along the normals
     tm = trimesh.Trimesh(v, faces, process=False)
     sd = rng.uniform(0.05, 0.15) if noise is None else noise
     v = v + tm.vertex_normals * rng.normal(0.0, 1.0, size=(len(v), 1)) * sd
+    rot, shift = np.eye(3), np.zeros(3)
     if pose == "random":
         rot = _random_rotation(rng)
         shift = rng.uniform(-50.0, 50.0, 3)
         v, stalk, blossom = v @ rot.T + shift, rot @ stalk + shift, rot @ blossom + shift
-    return Fruit(kind, v, faces, stalk, blossom)
+    return Fruit(kind, v, faces, stalk, blossom, seed, u, rot, shift, half_length)
+
+
+def _bend(rng: np.random.Generator, length: float):
+    """A zucchini's bend in the plane of x (its one draw from ``rng``, after the radial function's)."""
+    bend = rng.uniform(0.0, 0.25) * length
+
+    def bent(p):
+        p = np.array(p, dtype=np.float64)
+        p[..., 0] += bend * (p[..., 2] / length) ** 2
+        return p
+
+    return bent
+
+
+def surface(fruit: Fruit, directions: np.ndarray) -> np.ndarray:
+    """The points of ``fruit`` (without its noise) at unit ``directions`` of its own frame, in its pose.
+
+    The dense truth: a vertex of another fruit at direction ``u`` of that
+    fruit's frame corresponds to ``surface(fruit, u)`` (the same place of the
+    radial function: the stalk's direction, the calyx's, a lobe's angle).
+    """
+    u = np.asarray(directions, dtype=np.float64)
+    u = u / np.linalg.norm(u, axis=1, keepdims=True)
+    rng = np.random.default_rng(fruit.seed)
+    r = _radius(fruit.kind, u, rng)[0]
+    p = u * r[:, None]
+    if fruit.kind == "zucchini":
+        p = _bend(rng, fruit.half_length)(p)
+    return p @ fruit.rotation.T + fruit.shift

@@ -503,6 +503,22 @@ def test_uncovered_fraction_and_alternative_rank():
     assert _alternative_rank(np.array([0, 1]), 0, np.stack(turns[:2]), ball.vertices) is None
 
 
+def test_coverage_check_tries_the_best_candidate_end_over_end_first():
+    from hortishape.registration.orientation import _opposite_rank
+
+    s = trimesh.creation.icosphere(3, radius=40.0)
+    axis = np.array([0.0, 0.0, 1.0])  # the reference's stalk axis
+    # turns about the stalk axis keep the end; about x by 120 or 180 degrees they do not
+    turns = [rigid_transform(r, np.zeros(3)) for r in (
+        np.eye(3), rotation_about(axis, np.pi / 2), rotation_about([1.0, 0.0, 0.0], np.radians(120.0)),
+        rotation_about([1.0, 0.0, 0.0], np.pi), rotation_about(axis, np.pi))]
+    order = np.array([0, 1, 4, 3, 2])  # best first: the turns about the axis, then the end over end ones
+    assert _opposite_rank(order, 0, np.stack(turns), s.vertices, axis) == 3
+    assert _opposite_rank(order, 3, np.stack(turns), s.vertices, axis) == 0
+    # every candidate keeps the chosen end (the cavities decided it): none
+    assert _opposite_rank(np.array([0, 1, 2]), 0, np.stack([turns[0], turns[1], turns[4]]), s.vertices, axis) is None
+
+
 def test_search_taper_is_only_for_round_references():
     from hortishape.registration.orientation import _search_taper
 

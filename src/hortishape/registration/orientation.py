@@ -244,6 +244,21 @@ def _alternative_rank(order: np.ndarray, chosen: int, transforms: np.ndarray, po
     return None
 
 
+def _opposite_rank(order: np.ndarray, chosen: int, transforms: np.ndarray, points: np.ndarray,
+                   axis: np.ndarray) -> int | None:
+    """Rank in ``order`` of the best candidate that puts the reference's ``axis`` the other way from ``chosen``.
+
+    The candidate turned end over end: what the coverage check tries first,
+    since a registration that leaves part of the scan uncovered has most
+    often put the reference's stalk on the scan's blossom end.
+    """
+    a0 = _rigid_part(transforms[chosen], points)[:3, :3] @ axis
+    for rank, k in enumerate(order):
+        if (_rigid_part(transforms[k], points)[:3, :3] @ axis) @ a0 < 0:
+            return rank
+    return None
+
+
 @dataclass(frozen=True, eq=False)
 class _Orientation:
     """The initial alignment :func:`_choose_orientation` found.
@@ -251,9 +266,10 @@ class _Orientation:
     ``transform`` is the rigid start of the registration; ``scores``,
     ``chosen``, ``ends`` and ``confidence`` go to the
     :class:`~hortishape.registration.Registration`; ``alternative`` is the
-    search's transform of the best candidate turned well away from the
-    chosen one (``None`` if there is none), and ``alternative_index`` its
-    index, for the coverage check.
+    search's transform of the candidate the coverage check tries (the best
+    one end over end from the chosen one, or, where every candidate keeps
+    the chosen end, the best one turned more than ``ALTERNATIVE_TURN``
+    from it; ``None`` if there is none), and ``alternative_index`` its index.
     """
 
     transform: np.ndarray
@@ -331,5 +347,8 @@ def _choose_orientation(template: Template, target: TargetSurface, cfg: Registra
         scores = scores.copy()
         scores[k] = _search_orientation(template, target, cands[k : k + 1], cfg, plan, level=level)[0][0]
     confidence = 1.0 - scores[chosen] / scores[k] if scores[k] > 0 else 0.0
+    flip = _opposite_rank(order, chosen, transforms, coarse.vertices, template.axis().direction)
+    if flip is not None:
+        k = int(order[flip])
     return _Orientation(_refined_start(template, target, transforms[chosen], cfg, plan), scores, chosen, ends,
                         float(confidence), transforms[k], k)
