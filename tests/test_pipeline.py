@@ -139,7 +139,7 @@ def test_orientation_consensus_keeps_the_registration_that_agrees_with_the_other
     # others' mean
     from hortishape.align import rotation_about, rigid_transform
     from hortishape.layout import ModelDir
-    from hortishape.pipeline import _end_over_end, _orientation_consensus
+    from hortishape.pipeline import CONSENSUS_GAIN, _end_over_end, _orientation_consensus
 
     extra = tmp_path / "more"
     synth.write_population("apple", 6, extra, random_state=4, pose="upright", n_vertices=12000, n_jobs=1)
@@ -169,9 +169,11 @@ def test_orientation_consensus_keeps_the_registration_that_agrees_with_the_other
     layout = ModelDir(tmp_path)
     records = _orientation_consensus(files, layout, again, CONFIG, flip=_end_over_end(template))
     assert {folder for names, folder in calls if bad.stem in names} == {"first-pass-rank1", "first-pass-flipped"}
+    # another registration is kept only if it is closer by CONSENSUS_GAIN at least, the closest of those
     for r in records:
-        tried = {"first": r["distance_mm"], "runner-up": r["runner_up_distance_mm"], "flipped": r["flipped_distance_mm"]}
-        assert r["kept"] == min((d, k) for k, d in tried.items() if d is not None)[1]
+        tried = {"runner-up": r["runner_up_distance_mm"], "flipped": r["flipped_distance_mm"]}
+        better = {k: d for k, d in tried.items() if d is not None and d <= (1.0 - CONSENSUS_GAIN) * r["distance_mm"]}
+        assert r["kept"] == (min(better, key=better.get) if better else "first")
     rec = {r["name"]: r for r in records}[bad.stem]
     assert rec["kept"] != "first" and min(rec["runner_up_distance_mm"], rec["flipped_distance_mm"]) < rec["distance_mm"]
     folder = {"runner-up": layout.first_pass_runner_up, "flipped": layout.first_pass_flipped}[rec["kept"]]
@@ -181,6 +183,51 @@ def test_orientation_consensus_keeps_the_registration_that_agrees_with_the_other
     kept = read_mesh(files[bad]).vertices
     ref_tip = np.argmin(np.linalg.norm(template.mesh.vertices - synth.read_truth(extra / "apple_000.ply")["landmarks"]["stalk_tip"], axis=1))
     assert np.linalg.norm(kept[ref_tip] - truth["landmarks"]["stalk_tip"]) < 15.0
+
+
+def test_orientation_consensus_needs_a_clear_gain_to_overrule_the_first_registration(tmp_path):
+    # five ellipsoids in correspondence; the fifth's search was a close call.
+    # Its runner-up lies 2 % closer to the others' mean than its first
+    # registration: not enough (CONSENSUS_GAIN); half as far: kept.
+    import trimesh
+    from types import SimpleNamespace
+
+    from hortishape.layout import ModelDir
+    from hortishape.mesh import Mesh
+    from hortishape.pipeline import CONSENSUS_GAIN, _orientation_consensus
+
+    s = trimesh.creation.icosphere(2, radius=30.0)
+    rng = np.random.default_rng(0)
+    shapes = [s.vertices * [1.0 + 0.05 * rng.normal(), 1.0 + 0.05 * rng.normal(), 1.3] for _ in range(4)]
+    others = np.mean(shapes, axis=0)
+    odd = others + rng.normal(0.0, 2.0, others.shape)  # 2 mm of noise per coordinate off the others' mean
+    layout = ModelDir(tmp_path)
+    first = layout.first_pass
+    first.mkdir(parents=True)
+    files = {}
+    for i, v in enumerate([*shapes, odd]):
+        files[tmp_path / f"s{i}.ply"] = first / f"s{i}.ply"
+        write_mesh(first / f"s{i}.ply", Mesh(v, s.faces))
+        scores = [1.0, 1.01 if i == 4 else 1.5]
+        (first / f"s{i}.json").write_text(json.dumps({"orientation_scores": scores}))
+    assert CONSENSUS_GAIN > 0.02
+
+    def runner_up(closer):
+        def again(paths, folder, cfg, starts=None):
+            folder.mkdir(parents=True, exist_ok=True)
+            for p in paths:  # the odd one moved towards the others' mean
+                write_mesh(folder / f"{p.stem}.ply", Mesh(odd + closer * (others - odd), s.faces))
+            return [SimpleNamespace(ok=True) for _ in paths]
+        return again
+
+    records = _orientation_consensus(dict(files), layout, runner_up(0.02), CONFIG)
+    (rec,) = records
+    assert rec["name"] == "s4" and rec["why"] == "close call"
+    assert rec["runner_up_distance_mm"] < rec["distance_mm"] and rec["kept"] == "first"
+    kept = dict(files)
+    (rec,) = _orientation_consensus(kept, layout, runner_up(0.5), CONFIG)
+    assert rec["runner_up_distance_mm"] < 0.6 * rec["distance_mm"] and rec["kept"] == "runner-up"
+    assert kept[tmp_path / "s4.ply"] == layout.first_pass_runner_up / "s4.ply"
 
 
 def test_cli_register_with_landmarks(scans, tmp_path, capsys):

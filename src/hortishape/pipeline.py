@@ -848,6 +848,16 @@ CLOSE_CALL = 0.05
 #: ... or when its surface lies farther from the mean of the others than the
 #: median plus this many robust standard deviations (MAD * 1.4826).
 OUTLIER_SD = 3.0
+#: Another registration of a suspect replaces its first one only if it lies
+#: closer to the mean of the others by at least this fraction. The first is
+#: the search's own judgement, and on fruit whose ends look alike the
+#: distances barely tell orientations apart: in a build of 12 zucchini of a
+#: second generator (``benchmarks/othergen_build.py``, development seeds),
+#: two right ones were replaced by their end-over-end registrations, which
+#: lay 0.6 and 1.6 % closer; of the other 39 alternatives tried in builds of
+#: its apples, peppers, lemons and peaches, none that was kept had won by
+#: more than 1.3 % (several by 1e-15, the runner-up being the first again).
+CONSENSUS_GAIN = 0.05
 
 
 def _end_over_end(template: Template) -> np.ndarray:
@@ -874,7 +884,8 @@ def _orientation_consensus(files: dict, layout: ModelDir, register_paths, cfg: R
     end over end (into :attr:`ModelDir.first_pass_flipped`; the runner-up is often
     a neighbouring turn of the same end), unless the scan's log says its
     ends were matched by their cavities. Whichever lies closest to the mean
-    of the other surfaces is kept.
+    of the other surfaces is kept, if it lies closer than the first by at
+    least ``CONSENSUS_GAIN`` of the first's distance.
 
     Returns one record per suspect: name, why, the distances (mm RMS) and
     which was kept (``"first"``, ``"runner-up"`` or ``"flipped"``).
@@ -936,7 +947,7 @@ def _orientation_consensus(files: dict, layout: ModelDir, register_paths, cfg: R
                 continue
             alt = folder / f"{paths[i].stem}.ply"
             rec[key] = distance(read_mesh(alt).vertices, i)
-            if rec[key] < best:
+            if rec[key] < best and rec[key] <= (1.0 - CONSENSUS_GAIN) * dist[i]:
                 best = rec[key]
                 files[paths[i]] = alt
                 rec["kept"] = label

@@ -70,9 +70,10 @@ One call of :func:`register` does:
    uncovered (more than ``UNCOVERED_MAX`` of its vertices farther than
    ``UNCOVERED_EDGES`` edge lengths from it: the scan's stalk, when the
    reference came out upside down), the registration is run again from the
-   best search candidate turned well away from the chosen one, and that
-   result is kept if it leaves at most ``UNCOVERED_GAIN`` (half) as much
-   uncovered (``coverage_check``).
+   best search candidate end over end from the chosen one (where the
+   cavities decided the ends: the best one turned well away from it), and
+   that result is kept if it leaves at most ``UNCOVERED_GAIN`` (half) as
+   much uncovered (``coverage_check``).
 
 Design choices where the paper is silent or ambiguous
 ------------------------------------------------------

@@ -126,9 +126,10 @@ LANDMARK_SPREAD = 0.05
 #: search leaves a candidate tilted by up to about 20 degrees more.
 UP_TOLERANCE = 60.0
 
-#: The alternative orientation ``coverage_check`` tries, and the one the
-#: chosen orientation's confidence is measured against, is the best-scored
-#: search candidate turned from the chosen one by more than this (degrees).
+#: The chosen orientation's confidence is measured against the best-scored
+#: search candidate turned from the chosen one by more than this (degrees);
+#: ``coverage_check`` tries it when no candidate turns the reference end
+#: over end (the cavities decided the ends).
 ALTERNATIVE_TURN = 45.0
 
 
@@ -231,10 +232,11 @@ class RegistrationConfig:
         lengths of the reference from the registered surface is measured;
         above ``UNCOVERED_MAX`` (1 %) part of the scan was not reached (its
         stalk, when the reference came out upside down), and the
-        registration is run again from the best search candidate turned by
-        more than ``ALTERNATIVE_TURN`` (45) degrees from the chosen one, and
-        kept if it leaves at most ``UNCOVERED_GAIN`` (half) as much
-        uncovered. Costs a nearest-vertex
+        registration is run again from the best search candidate that turns
+        the reference end over end from the chosen one (or, when the
+        cavities decided the ends, from the best one turned by more than
+        ``ALTERNATIVE_TURN`` (45) degrees), and kept if it leaves at most
+        ``UNCOVERED_GAIN`` (half) as much uncovered. Costs a nearest-vertex
         query, and a second registration when it fires.
     up : (3,) tuple of float, optional
         The reference and every target stand with the stalk towards this

@@ -193,7 +193,7 @@ def register(
         if uncovered > UNCOVERED_MAX:
             # a part of the scan the registered surface does not reach (its
             # stalk, when the reference came out upside down): try the best
-            # candidate turned well away from this one and keep it if it
+            # candidate end over end (or turned well away) and keep it if it
             # covers clearly more (see ``coverage_check``)
             alt = run(_refined_start(template, tgt, orient.alternative, cfg, plan), orient.alternative_index)
             if _uncovered_fraction(alt, tgt, UNCOVERED_EDGES * fine.edge_length) <= UNCOVERED_GAIN * uncovered:
