@@ -41,11 +41,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import othergen  # noqa: E402
-
-
-def _angle(a: np.ndarray, b: np.ndarray) -> float:
-    c = a @ b / np.linalg.norm(a) / np.linalg.norm(b)
-    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+from orientation import _angle  # noqa: E402  (the pole axes' angle, as the pairs are measured)
 
 
 def _poles(folder: Path, names, poles: dict, js: int, jb: int) -> dict:
