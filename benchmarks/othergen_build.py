@@ -22,6 +22,7 @@ scan's registered surface:
 Run::
 
     python benchmarks/othergen_build.py --kinds pepper apple --n 12 --seed 1000
+    python benchmarks/othergen_build.py --kinds apple --n 12 --seed 0 --end-over-end   # how far a flip stands out
 
 Seeds below 100 may be looked at while developing; seeds from 1000 are the
 test set (see ``othergen``).
@@ -96,6 +97,42 @@ def build_rows(kind: str, seed: int, n: int, work: Path, points: int, jobs: int 
     }
 
 
+def flipped_distances(work: Path, kind: str, jobs: int | None) -> list[tuple[str, float, float]]:
+    """Each first-pass registration against the same scan registered from it turned end over end.
+
+    Both as the orientation check measures them: RMS distance (mm) to the
+    Procrustes mean of the other first-pass surfaces. Tells how far an
+    upside-down registration would stand out of the population.
+    """
+    from hortishape.io import read_mesh
+    from hortishape.layout import ModelDir
+    from hortishape.pipeline import _end_over_end, register_files
+    from hortishape.procrustes import generalized_procrustes, procrustes_align
+    from hortishape.registration import prepare_reference
+
+    model = ModelDir(work / kind / "model")
+    summary = json.loads(model.summary.read_text())
+    template = prepare_reference(read_mesh(summary["reference"]), summary["n_points"])
+    names = sorted(p.stem for p in model.first_pass.glob("*.ply"))
+    flip = _end_over_end(template)
+    starts = [np.asarray(json.loads((model.first_pass / f"{n}.json").read_text())["transform"]) @ flip for n in names]
+    out = work / kind / "end-over-end"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        register_files(template, [work / kind / "scans" / f"{n}.ply" for n in names], out,
+                       initial_transforms=starts, n_jobs=jobs)
+    gpa = generalized_procrustes(np.stack([read_mesh(model.first_pass / f"{n}.ply").vertices for n in names]))
+    n = len(names)
+    others = (n * gpa.mean[None] - gpa.aligned) / (n - 1)
+
+    def distance(shape, i):
+        aligned, _ = procrustes_align(shape, others[i])
+        return float(np.sqrt(((aligned - others[i]) ** 2).sum(axis=1).mean()))
+
+    return [(name, distance(gpa.aligned[i], i), distance(read_mesh(out / f"{name}.ply").vertices, i))
+            for i, name in enumerate(names)]
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--kinds", nargs="+", default=["apple", "pepper", "peach", "lemon"], choices=othergen.KINDS)
@@ -104,6 +141,9 @@ def main(argv=None) -> int:
     ap.add_argument("--points", type=int, default=30000, help="reference vertices")
     ap.add_argument("--jobs", type=int, default=None)
     ap.add_argument("--out", type=Path, default=None, help="work folder (default: a temporary one)")
+    ap.add_argument("--end-over-end", action="store_true",
+                    help="also register every scan from its first-pass placement turned end over end, and print "
+                         "how far each lies from the others' mean both ways")
     args = ap.parse_args(argv)
     work = args.out or Path(tempfile.mkdtemp(prefix="hortishape-othergen-build-"))
     print(f"builds of {args.n} fruit per kind, seeds {args.seed}-{args.seed + args.n - 1}, random poses, noise; "
@@ -119,7 +159,17 @@ def main(argv=None) -> int:
             print(f"  {name:<16} stalk {row['stalk_mm']:6.1f}  blossom {row['blossom_mm']:6.1f} mm  "
                   f"axis {row['axis_deg']:6.1f} deg   (first pass: axis {first['axis_deg']:6.1f})  {' '.join(flags)}")
         for c in r["checked"]:
-            print(f"  checked {c['name']} ({c['why']}): kept {c['kept']}")
+            alts = ", ".join(f"{k.removesuffix('_distance_mm')} {c[k]:.2f}" for k in c
+                             if k.endswith("_distance_mm") and k != "distance_mm" and c[k] is not None)
+            print(f"  checked {c['name']} ({c['why']}): {c['distance_mm']:.2f} mm from the others' mean"
+                  f"{'; ' + alts if alts else ''}; kept {c['kept']}")
+        if args.end_over_end:
+            rows = flipped_distances(work, kind, args.jobs)
+            ratios = np.array([f / d for _, d, f in rows])
+            for name, d, f in rows:
+                print(f"  end over end {name:<16} {d:5.2f} -> {f:5.2f} mm from the others' mean")
+            print(f"  end over end / as registered: median {np.median(ratios):.2f}, min {ratios.min():.2f}, "
+                  f"max {ratios.max():.2f}")
         fin = list(r["final"].values())
         table.append((kind, len(fin), sum(_right(x) for x in fin), sum(x["axis_deg"] > 90 for x in fin),
                       sum(x["axis_deg"] > 90 for x in r["first"].values()), len(r["uncertain"]),

@@ -710,3 +710,29 @@ def test_real_fruit_onto_a_turned_copy_of_itself(ycb):
     for seed, name in enumerate(["013_apple", "014_lemon"]):
         _, s, bl, s_true, b_true = _carried_poles(ycb, name, name, seed=seed, n_points=4000)
         assert np.linalg.norm(s - s_true) < 1.0 and np.linalg.norm(bl - b_true) < 1.0
+
+
+def test_coverage_check_skips_a_scan_whose_stalk_outgrows_the_references():
+    # a ball with a stalk cavity on top (+z): scan vertices left uncovered
+    # above it are the scan's longer stalk, where the reference's own stalk
+    # end lies (the ends are right); below it, or with no end told apart
+    # (a plain ball), they are not
+    from hortishape.registration.core import _beyond_stalk
+
+    s = trimesh.creation.icosphere(5, radius=40.0)
+    v = s.vertices * [1.0, 1.0, 0.8]
+    v[:, 2] -= 12.0 * np.exp(-((v[:, 0] ** 2 + v[:, 1] ** 2) / 120.0)) * (v[:, 2] > 0)
+    template = prepare_reference(Mesh(v, s.faces), coarse_vertices=500)
+    assert template.axis().direction[2] > 0.99 and template.axis().contrast > 0.5
+    # registered onto a scan turned a quarter turn about x: the stalk end now points to -y
+    r = rotation_about([1.0, 0.0, 0.0], np.pi / 2)
+    reg = Registration(template.mesh.vertices @ r.T, s.faces, rigid_transform(r, np.zeros(3)), (), True)
+    stalk = np.array([[0.0, -38.0, 0.0], [2.0, -45.0, 1.0], [-1.0, -52.0, 0.0]])
+    assert _beyond_stalk(template, reg, stalk, RegistrationConfig())
+    assert not _beyond_stalk(template, reg, -stalk, RegistrationConfig())  # at the blossom end: upside down
+    assert not _beyond_stalk(template, reg, stalk[:, [1, 0, 2]], RegistrationConfig())  # on a side
+    assert not _beyond_stalk(template, reg, np.zeros((0, 3)), RegistrationConfig())
+    plain = prepare_reference(Mesh(s.vertices * [1.0, 1.0, 0.8], s.faces), coarse_vertices=500)
+    assert plain.axis().contrast < RegistrationConfig().end_contrast
+    assert not _beyond_stalk(plain, Registration(plain.mesh.vertices @ r.T, s.faces, np.eye(4), (), True), stalk,
+                             RegistrationConfig())

@@ -12,8 +12,22 @@ import numpy as np
 from ..align import apply_transform, rigid_fit
 from ..errors import ConvergenceWarning, MeshError
 from ..mesh import Mesh
-from .config import LANDMARK_SPREAD, UNCOVERED_EDGES, UNCOVERED_GAIN, UNCOVERED_MAX, RegistrationConfig
-from .correspondences import TargetSurface, _landmark_pairs, _nearest_vertices, _uncovered_fraction, prepare_target
+from .config import (
+    LANDMARK_SPREAD,
+    UNCOVERED_AT_STALK,
+    UNCOVERED_EDGES,
+    UNCOVERED_GAIN,
+    UNCOVERED_MAX,
+    RegistrationConfig,
+)
+from .correspondences import (
+    TargetSurface,
+    _landmark_pairs,
+    _nearest_vertices,
+    _uncovered,
+    _uncovered_fraction,
+    prepare_target,
+)
 from .elastic import _deform, _land, _rigid_part
 from .folds import _repair_folds
 from .orientation import _choose_orientation, _Orientation, _refined_start, _search_taper, _up_hint
@@ -189,8 +203,8 @@ def register(
 
     reg = run(orient.transform, orient.chosen)
     if cfg.coverage_check and orient.alternative is not None:
-        uncovered = _uncovered_fraction(reg, tgt, UNCOVERED_EDGES * fine.edge_length)
-        if uncovered > UNCOVERED_MAX:
+        uncovered, points = _uncovered(reg, tgt, UNCOVERED_EDGES * fine.edge_length)
+        if uncovered > UNCOVERED_MAX and not _beyond_stalk(template, reg, points, cfg):
             # a part of the scan the registered surface does not reach (its
             # stalk, when the reference came out upside down): try the best
             # candidate end over end (or turned well away) and keep it if it
@@ -200,6 +214,22 @@ def register(
                 reg = alt
             reg = replace(reg, seconds=time.perf_counter() - t_start)
     return reg
+
+
+def _beyond_stalk(template: Template, reg: Registration, points: np.ndarray, cfg: RegistrationConfig) -> bool:
+    """Whether ``points`` of the scan lie at the registered reference's stalk end (see ``UNCOVERED_AT_STALK``).
+
+    False when the reference's cavities do not tell its ends apart
+    (``end_contrast``): it then has no stalk end to go by.
+    """
+    ax = template.axis()
+    if ax.contrast < cfg.end_contrast or not len(points):
+        return False
+    along = (template.mesh.vertices - ax.centre) @ ax.direction
+    stalk, blossom = reg.vertices[int(np.argmax(along))], reg.vertices[int(np.argmin(along))]
+    to_stalk = float(np.linalg.norm(points - stalk, axis=1).mean())
+    to_blossom = float(np.linalg.norm(points - blossom, axis=1).mean())
+    return to_stalk <= UNCOVERED_AT_STALK * to_blossom
 
 
 def plan_registration(template: Template, config: RegistrationConfig | None = None, *,

@@ -473,9 +473,16 @@ def _uncovered_fraction(reg: Registration, target: TargetSurface, distance: floa
     than the distance to the surface through an AABB tree of the registered
     faces); at twice the edge length the two tell the same places apart.
     """
+    return _uncovered(reg, target, distance, samples)[0]
+
+
+def _uncovered(reg: Registration, target: TargetSurface, distance: float,
+               samples: int = 20_000) -> tuple[float, np.ndarray]:
+    """:func:`_uncovered_fraction` and the uncovered vertices themselves."""
     from scipy.spatial import cKDTree
 
     v = target.mesh.vertices
     idx = np.linspace(0, len(v) - 1, min(samples, len(v))).astype(np.int64)
     d, _ = cKDTree(reg.vertices).query(v[idx], distance_upper_bound=distance)
-    return float(np.isinf(d).mean())
+    far = np.isinf(d)
+    return float(far.mean()), v[idx][far]
