@@ -172,6 +172,9 @@ def test_tolerance_options_reach_the_configuration():
     cfg = _registration_config(sub.parse_args(["ref.ply", "a.ply", "--out", "o", "--edge-tolerance", "0.005"]))
     assert (cfg.tolerance, cfg.edge_tolerance) == (1e-3, 0.005)
     assert _registration_config(sub.parse_args(["ref.ply", "a.ply", "--out", "o"])).edge_tolerance == 1e-3
+    assert _registration_config(sub.parse_args(["ref.ply", "a.ply", "--out", "o"])).move_tolerance == 0.05
+    moved = sub.parse_args(["ref.ply", "a.ply", "--out", "o", "--move-tolerance", "0"])
+    assert _registration_config(moved).move_tolerance == 0.0
 
 
 def test_convert_and_sample_take_a_model_scalismo_wrote(tmp_path, capsys):

@@ -157,9 +157,28 @@ def test_edge_tolerance_ends_the_iterations_on_a_noisy_scan(template, dense):
     for tol in (1e-3, 0.02):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", ConvergenceWarning)
-            runs[tol] = register(template, noisy, RegistrationConfig(orientation="none", edge_tolerance=tol))
+            runs[tol] = register(template, noisy, RegistrationConfig(orientation="none", edge_tolerance=tol,
+                                                                     move_tolerance=0.0))
     assert len(runs[0.02].log) < len(runs[1e-3].log)
     # both sit on the noise-free surface within the noise
+    d = [closest_points(dense, r.vertices).distances.mean() for r in runs.values()]
+    assert max(d) < 0.1 and abs(d[0] - d[1]) < 0.02, d
+
+
+def test_move_tolerance_ends_the_iterations_once_the_surface_stops(template, dense):
+    # on the same noisy scan: once no vertex moves more than a twentieth of
+    # an edge, the remaining iterations only follow the noise; the surface
+    # and its correspondence are those of running on
+    rng = np.random.default_rng(3)
+    n = vertex_normals(dense.vertices, dense.faces)
+    noisy = Mesh(dense.vertices + n * rng.normal(0.0, 0.1, (len(n), 1)), dense.faces)
+    runs = {}
+    for tol in (0.0, 0.05):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", ConvergenceWarning)
+            runs[tol] = register(template, noisy, RegistrationConfig(orientation="none", move_tolerance=tol))
+    assert runs[0.05].converged and len(runs[0.05].log) < len(runs[0.0].log)
+    assert np.linalg.norm(runs[0.05].vertices - runs[0.0].vertices, axis=1).mean() < 0.02
     d = [closest_points(dense, r.vertices).distances.mean() for r in runs.values()]
     assert max(d) < 0.1 and abs(d[0] - d[1]) < 0.02, d
 

@@ -325,6 +325,10 @@ def _add_registration_options(p) -> None:
                    help="or when |d_t - d_(t-1)| falls below this many reference edge lengths (on a noisy "
                         "scan d_t keeps falling by about a tenth per iteration as the surface fits the noise; "
                         "0.005 made such registrations about a third faster: docs/design-notes.md)")
+    g.add_argument("--move-tolerance", type=float, default=0.05, metavar="EDGES",
+                   help="or when no vertex moved more than this many reference edge lengths in each of the "
+                        "last two iterations (the surface has stopped but for following a scan's noise; "
+                        "0: off)")
     g.add_argument("--orientation", choices=["axis", "search", "pca", "none"], default="axis",
                    help="initial alignment: put the reference's axis of revolution on the scan's, cavity "
                         "(stalk) end on cavity end, and keep the best turn about it after a short elastic "
@@ -350,7 +354,7 @@ def _registration_config(args):
             n_iterations=args.iterations, beta_start=args.stiffness[0], beta_end=args.stiffness[1],
             max_angle=args.max_angle, distance_factor=args.distance_factor,
             distance_floor=args.distance_floor, tolerance=args.tolerance,
-            edge_tolerance=args.edge_tolerance,
+            edge_tolerance=args.edge_tolerance, move_tolerance=args.move_tolerance,
             max_iterations=max(50, args.iterations + 20), orientation=args.orientation, warp=args.warp,
             up=None if args.up is None else tuple(args.up),
         )

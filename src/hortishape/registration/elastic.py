@@ -283,6 +283,7 @@ def _deform(template: Template, target: TargetSurface, base_c: np.ndarray, base_
     converged = False
     it = 0
     prev_d = np.inf
+    still = 0  # successive fine iterations in which no vertex moved more than move_tolerance edges
     while it < cfg.max_iterations:
         t_it = time.perf_counter()
         beta = betas[it] if it < len(betas) else cfg.beta_end
@@ -292,6 +293,7 @@ def _deform(template: Template, target: TargetSurface, base_c: np.ndarray, base_
             level_name = "fine"
         lev = coarse if level_name == "coarse" else fine
         beta_level = beta * (ratio if level_name == "coarse" else 1.0)
+        before = state.positions if level_name == "fine" and cfg.move_tolerance > 0 else None
         d_t, kept = _iterate(
             lev,
             state,
@@ -311,12 +313,16 @@ def _deform(template: Template, target: TargetSurface, base_c: np.ndarray, base_
                 "(are the surfaces far apart or in different units?)"
             )
         it += 1
+        if before is not None:
+            moved = float(np.sqrt(((state.positions - before) ** 2).sum(axis=1).max()))
+            still = still + 1 if moved < cfg.move_tolerance * fine.edge_length else 0
         if it >= len(betas) and np.isfinite(prev_d):
             change = abs(d_t - prev_d)
             # the paper's relative test, or a change below `edge_tolerance`
             # edge lengths: once the surface sits on the target d_t keeps halving
-            # and the relative test alone would never pass
-            if change < cfg.tolerance * d_t or change < cfg.edge_tolerance * fine.edge_length:
+            # and the relative test alone would never pass; or the surface
+            # has stopped (`move_tolerance`)
+            if change < cfg.tolerance * d_t or change < cfg.edge_tolerance * fine.edge_length or still >= 2:
                 converged = True
                 break
         prev_d = d_t

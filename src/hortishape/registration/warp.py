@@ -9,7 +9,7 @@ import numpy as np
 from ..align import _axis_frame, apply_transform, principal_axes
 from ..mesh import Mesh
 from ..surface import barycentric_interpolate, closest_points, face_normals, vertex_normals
-from .config import ELONGATED, LOBED, LOBED_RIDGE, ROUND_RIDGE, WARP_MIN_GAIN, RegistrationConfig
+from .config import ELONGATED, LOBED, LOBED_RIDGE, ROUND_RIDGE, WARP_MIN_GAIN, WARP_STEP_GAIN, RegistrationConfig
 from .correspondences import TargetSurface, _match
 from .result import RegistrationPlan
 from .template import Template, _Level
@@ -204,7 +204,8 @@ def _fit_warp(
     barely sees (shear and twist of a round fruit; see ``ROUND_RIDGE``), with the
     quadratic terms pulled towards zero (``warp_prior``); a map whose Jacobian
     determinant would fall below ``min_jacobian`` anywhere on the surface
-    (a fold or squash) is not taken. ``kind`` is ``"affine"``, ``"taper"``
+    (a fold or squash) is not taken. The steps stop when one takes less
+    than ``WARP_STEP_GAIN`` off the mean residual. ``kind`` is ``"affine"``, ``"taper"``
     (the quadratic map restricted to :func:`_taper_basis` about the level's
     :func:`_concavity_axis`) or ``"quadratic"``.
 
@@ -269,10 +270,12 @@ def _fit_warp(
             break
         if np.isnan(start):
             start = float(np.abs(b).mean())
+        before = float(np.abs(b - a @ theta).mean())
         end = float(np.abs(b - a @ coef.ravel()).mean())
         change = np.abs(coef - warp.coef).max()
         warp = new
-        if change < 1e-4:  # a tenth of a per cent of the size: well under a voxel
+        # 1e-4 of the size: well under a voxel
+        if change < 1e-4 or before - end < WARP_STEP_GAIN * before:
             break
     if not start - end > WARP_MIN_GAIN * scale:
         return None  # not worth it (see WARP_MIN_GAIN)
