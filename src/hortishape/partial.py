@@ -108,9 +108,9 @@ NORMALS_EVERY = 3
 #: fit, the start value.
 CORRELATION_MM = (2.0, 30.0)
 START_CORRELATION_MM = 10.0
-#: The noise used until it is estimated from the residuals, mm; and its floor. About twice the
-#: residuals of a fit in the right pose (0.2-0.35 mm): at 1 mm the prior outweighed the points and the
-#: search kept poses the mean fits (docs/design-notes.md).
+#: The noise used until it is estimated from the residuals, mm (about twice the residuals of a fit in
+#: the right pose, 0.2-0.35 mm: at 1 mm the prior outweighed the points and the pose search kept the
+#: poses the mean fits; docs/design-notes.md); and its floor.
 START_NOISE_MM = 0.5
 MIN_NOISE_MM = 0.05
 #: A surface point counts as observed when a kept point lies this many point spacings from it.
