@@ -132,3 +132,23 @@ def test_ray_scene_max_distance():
     assert face2.tolist() == [face[0], -1, face[2]]
     assert t2[1] == np.inf and not bary2[1].any()
     np.testing.assert_allclose(t2[[0, 2]], t[[0, 2]])
+
+
+def test_ray_scene_threads_give_the_same_hits(monkeypatch):
+    from hortishape.registration import correspondences
+
+    s = sphere(10.0, level=5)
+    scene = RayScene(s.vertices, s.faces)
+    rng = np.random.default_rng(0)
+    n = 4 * correspondences.RAY_THREAD_MIN + 7  # parts of unequal length
+    o = rng.normal(size=(n, 3))
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    limit = rng.uniform(5.0, 20.0, n)
+    monkeypatch.setattr(correspondences, "_ray_threads", lambda k: 1)
+    one = scene.first_hit(o, d, max_distance=limit)
+    monkeypatch.setattr(correspondences, "_ray_threads", lambda k: 4)  # whatever this machine's cores
+    split = scene.first_hit(o, d, max_distance=limit)
+    assert (one[0] >= 0).any() and (one[0] < 0).any()
+    for a, b in zip(one, split):
+        np.testing.assert_array_equal(a, b)

@@ -104,7 +104,7 @@ def run_jobs(
 
 
 def _start_worker(initializer: Callable | None, initargs: tuple) -> None:
-    """Prepare a local worker process: one BLAS thread, then the batch's own initializer.
+    """Prepare a local worker process: one BLAS thread and one ray thread, then the batch's own initializer.
 
     Each worker has a core; BLAS threads would fight the other workers for
     them. It also makes a local worker compute as a Dask worker does (Dask's
@@ -115,7 +115,10 @@ def _start_worker(initializer: Callable | None, initargs: tuple) -> None:
     """
     from threadpoolctl import threadpool_limits
 
+    from .registration import correspondences
+
     threadpool_limits(limits=1)
+    correspondences.RAY_THREADS = 1  # the ray queries' threads too (``RAY_THREAD_MIN``)
     if initializer is not None:
         initializer(*initargs)
 

@@ -19,6 +19,8 @@ Embree (``embreex``) when available.
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -45,6 +47,22 @@ __all__ = [
 
 #: status codes of :attr:`Correspondences.status`
 KEPT, NO_HIT, NORMAL, DISTANCE, CROSSING = 0, 1, 2, 3, 4
+
+#: A ray query is split over threads (up to ``RAY_THREADS``, at most the
+#: cores this process may use) when each gets at least this many rays.
+#: Embree traces each part without Python's lock, so the parts run at once;
+#: the hits are the same as in one query. Fewer rays per thread gain less
+#: than starting the threads costs.
+RAY_THREAD_MIN = 8192
+RAY_THREADS = 4
+
+
+def _ray_threads(n_rays: int) -> int:
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not on Linux
+        cores = os.cpu_count() or 1
+    return max(1, min(RAY_THREADS, cores, n_rays // RAY_THREAD_MIN))
 
 
 class RayScene:
@@ -86,6 +104,24 @@ class RayScene:
                 np.ascontiguousarray(self.vertices - self._shift, dtype=np.float32),
                 np.ascontiguousarray(self.faces, dtype=np.int32),
             )
+            # the first query builds the scene's tree: one ray now, so that
+            # threads never query a scene still being built
+            self._scene.run(np.zeros((1, 3), np.float32), np.ones((1, 3), np.float32), output=1)
+
+    def _run(self, o: np.ndarray, d: np.ndarray, dists) -> dict:
+        """Embree's first hits of float32 rays, the rays split over threads when there are many."""
+        n = _ray_threads(len(o))
+        if n == 1:
+            return self._scene.run(o, d, dists=dists, output=1)
+        bounds = np.linspace(0, len(o), n + 1).astype(int)
+
+        def part(i: int) -> dict:
+            a, b = bounds[i], bounds[i + 1]
+            return self._scene.run(o[a:b], d[a:b], dists=None if dists is None else dists[a:b], output=1)
+
+        with ThreadPoolExecutor(n) as pool:
+            parts = list(pool.map(part, range(n)))
+        return {key: np.concatenate([p[key] for p in parts]) for key in ("primID", "u", "v")}
 
     def first_hit(self, origins, directions, max_distance=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Nearest hit of each ray.
@@ -118,9 +154,7 @@ class RayScene:
                 lim = np.asarray(max_distance, dtype=np.float64)
                 # float32 round-off must never cut a hit at the limit itself
                 dists = np.minimum(lim * (1.0 + 1e-5) + 1e-4, 1e30).astype(np.float32)
-            res = self._scene.run(
-                (o - self._shift).astype(np.float32), d.astype(np.float32), dists=dists, output=1
-            )
+            res = self._run((o - self._shift).astype(np.float32), d.astype(np.float32), dists)
             face = np.asarray(res["primID"], dtype=np.int64)
             u = np.asarray(res["u"], dtype=np.float64)
             v = np.asarray(res["v"], dtype=np.float64)
