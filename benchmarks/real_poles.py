@@ -5,11 +5,11 @@ to mm here) whose stalk and blossom poles were marked by hand from renders
 (``tests/data/ycb/poles.json``, with how each was marked). No part of
 hortishape was tuned on them: they are a test set.
 
-For every ordered pair of the six marked round scans (or of ``--scans``; reference A, target B), B
-is turned by a random rotation (seeded) and A is registered onto it with
-:func:`hortishape.registration.register`'s defaults. A's marked poles are carried
-through the correspondence (the reference vertex nearest each mark) and
-compared with B's marks, turned with B:
+For every ordered pair of the six marked round scans (or of ``--scans``;
+reference A, target B), B is turned by a random rotation (seeded) and A is
+registered onto it with :func:`hortishape.registration.register`'s defaults.
+A's marked poles are carried through the correspondence (the reference vertex
+nearest each mark) and compared with B's marks, turned with B:
 
 * stalk and blossom errors (mm): distance from the carried pole to B's mark;
 * axis error (degrees): angle between the carried stalk-blossom axis and B's;
@@ -19,8 +19,9 @@ compared with B's marks, turned with B:
   tie).
 
 Each scan onto a turned copy of itself is the control: the pose alone is
-recovered there (all eight marked scans, the banana and the strawberry too). The issue's targets: poles within 12 mm and the axis within
-25 degrees for every pair.
+recovered there (all eight marked scans, the banana and the strawberry
+too). The issue's targets: poles within 12 mm and the axis within 25
+degrees for every pair.
 
 Run::
 
