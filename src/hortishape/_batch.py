@@ -139,6 +139,10 @@ def _cluster_task(fn, initializer, initargs, token: str, topic: str, index: int,
         get_worker().log_event(topic, index)
     except ValueError:  # not on a worker (a synchronous test scheduler): nothing to count
         pass
+    else:
+        from .registration import correspondences
+
+        correspondences.RAY_THREADS = 1  # a worker runs one task per core, as a local one (_start_worker)
     if initializer is not None and _INITIALIZED.get("token") != token:
         initializer(*initargs)
         _INITIALIZED["token"] = token
