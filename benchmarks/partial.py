@@ -23,6 +23,7 @@ Run::
 
     python benchmarks/partial.py                    # 20 training apples, 6 test apples
     python benchmarks/partial.py --train 12 --test 6 --seed 5 --table
+    python benchmarks/partial.py --train 12 --seed 21 --views 1 --build /tmp/build21   # as a user builds it
 """
 
 from __future__ import annotations
@@ -48,6 +49,22 @@ def build_truth_model(n_train: int, seed: int, n_points: int):
     shapes = np.stack([synth.true_correspondence(canon, inst) for inst in pop])
     gpa = generalized_procrustes(shapes)
     return ShapeModel().fit(gpa.aligned, ref.mesh.faces)
+
+
+def build_pipeline_model(n_train: int, seed: int, n_points: int, folder: Path):
+    """A model as a user builds one: ``hortishape build`` of ``n_train`` synthetic apple scans.
+
+    The scans and the model are kept in ``folder`` and reused when the model is there already.
+    """
+    from hortishape import synth
+    from hortishape.model import ShapeModel
+    from hortishape.pipeline import build_model
+
+    path = folder / "model" / "model.h5"
+    if not path.exists():
+        synth.write_population("apple", n_train, folder / "scans", random_state=seed)
+        build_model(folder / "scans", folder / "model", n_points=n_points)
+    return ShapeModel.load(path)
 
 
 def surface_error(vertices, faces, truth) -> float:
@@ -126,6 +143,9 @@ def main() -> None:
     ap.add_argument("--noise", type=float, default=0.2, help="depth noise, mm")
     ap.add_argument("--table", action="store_true",
                     help="add the table behind each fruit as the first camera sees it, and 100 stray points")
+    ap.add_argument("--build", type=Path, default=None, metavar="DIR",
+                    help="build the model as a user does ('hortishape build' of synthetic scans, kept in DIR and "
+                         "reused) instead of in the generator's true correspondence")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
 
@@ -134,8 +154,13 @@ def main() -> None:
     from hortishape.surface import signed_volume, vertex_normals
 
     t0 = time.perf_counter()
-    model = build_truth_model(args.train, args.seed, args.points)
-    print(f"model: {args.train} synthetic apples (seed {args.seed}) in true correspondence, "
+    if args.build:
+        model = build_pipeline_model(args.train, args.seed, args.points, args.build)
+        how = f"registered by 'hortishape build' (in {args.build})"
+    else:
+        model = build_truth_model(args.train, args.seed, args.points)
+        how = "in true correspondence"
+    print(f"model: {args.train} synthetic apples (seed {args.seed}) {how}, "
           f"{model.n_points_:,} vertices, {model.n_components_} modes ({time.perf_counter() - t0:.0f} s)")
     t0 = time.perf_counter()
     fitter = PartialFitter(model)
