@@ -2,7 +2,9 @@
 
 A model is built from synthetic apples in true correspondence (the
 generator's canonical coordinates carried to a 30,000-vertex reference, so
-the figures measure the partial fit, not the registration). Apples of
+the figures measure the partial fit, not the registration); with
+``--build DIR`` it is built as a user builds one, by `hortishape build` of
+synthetic scans (registration included). Apples of
 another seed, in random poses, are seen from 1, 2 and 3 random directions
 (`hortishape.synth.depth_view`: one point per mm^2 of outline, 0.2 mm depth
 noise). For each it prints:
