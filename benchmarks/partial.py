@@ -232,7 +232,7 @@ def main() -> None:
                   f"{within1:.0%}/{within2:.0%}, {seconds:.2f} s", flush=True)
 
     print()
-    print("views  seen  completion mm (max)  volume err % mean |max|  true within 1 SD / 2 SD  "
+    print("views  seen  completion mm (max)  volume err % mean |max|  SD % mean  rms z  true within 1 SD / 2 SD  "
           "vertices within 1 / 2 SD   s/fit   hull mm / %    ellipsoid mm / %   scaled mean mm / %")
     for n_views in args.views:
         r = [x for x in rows if x["views"] == n_views]
@@ -243,6 +243,7 @@ def main() -> None:
         z = np.abs(col("z"))
         print(f"{n_views:>5}  {col('observed').mean():>4.0%}  {col('completion_mm').mean():>8.2f} ({col('completion_mm').max():.2f})"
               f"      {np.abs(col('volume_error_pct')).mean():>6.2f} | {np.abs(col('volume_error_pct')).max():>5.2f}"
+              f"      {np.mean(col('volume_sd_ml') / col('volume_true_ml')) * 100:>5.2f}  {np.sqrt(np.mean(z**2)):>5.2f}"
               f"        {int((z <= 1).sum())} / {int((z <= 2).sum())} of {len(r)}"
               f"                 {col('vertex_within_1sd').mean():.0%} / {col('vertex_within_2sd').mean():.0%}"
               f"        {np.median(col('seconds')):.2f}"

@@ -117,3 +117,41 @@ def test_cli_fit_partial_writes_the_surface_its_sd_figures_and_picture(sphere, e
     assert main(["fit", str(model_path), str(tmp_path / "metres.ply"), "--partial"]) != 0
     err = capsys.readouterr().err
     assert "metres.ply" in err and "in metres" in err and "Traceback" not in err
+
+
+def test_the_jackknife_in_the_gram_matrix_is_that_of_the_models_built_without_each_shape(sphere, egg_model):
+    from hortishape.partial import _jackknife, _training_shapes, _volume_gradient
+    from hortishape.surface import vertex_normals
+
+    shapes = _training_shapes(egg_model) + egg_model.mean_
+    faces = egg_model.faces_
+    # a cap of another egg, seen along its vertices' normals at the mean's vertices, in the model's frame
+    mean_normals = vertex_normals(egg_model.mean_, faces)
+    vertices = np.flatnonzero(egg_model.mean_[:, 2] > 10.0)
+    rng = np.random.default_rng(2)
+    points = _egg(sphere, [41.0, 37.0, 47.0], 0.06).vertices[vertices] + rng.normal(0.0, 0.2, (len(vertices), 3))
+    normals = mean_normals[vertices]
+    weights = rng.uniform(0.5, 1.0, len(vertices))
+    distances = np.einsum("kd,kd->k", normals, points - egg_model.mean_[vertices])
+    gradient = _volume_gradient(egg_model.mean_, faces)
+    volume_sd, sd = _jackknife(egg_model, egg_model.n_components_, vertices, normals, weights, 0.3, points,
+                               distances, gradient, mean_normals)
+    # each model of eleven eggs, built and conditioned on the points (pose free) in the vertices' space
+    completions = []
+    for i in range(len(shapes)):
+        other = ShapeModel().fit(np.delete(shapes, i, axis=0), faces)
+        basis = (other.components_ * np.sqrt(other.explained_variance_)[:, None]).reshape(-1, len(sphere.vertices), 3)
+        design = np.concatenate([np.einsum("kd,jkd->kj", normals, basis[:, vertices]),
+                                 -np.cross(points, normals), -normals], axis=1)
+        r = np.einsum("kd,kd->k", normals, points - other.mean_[vertices])
+        h = design.T @ (design * weights[:, None]) / 0.3**2 + np.diag([1.0] * len(basis) + [1e-9] * 6)
+        c = np.linalg.solve(h, design.T @ (weights * r) / 0.3**2)[: len(basis)]
+        completions.append(other.mean_ + np.einsum("j,jnd->nd", c, basis))
+    completions = np.array(completions)
+    spread = completions - completions.mean(axis=0)
+    factor = (len(shapes) - 1) / len(shapes)
+    assert volume_sd > 0
+    np.testing.assert_allclose(volume_sd, np.sqrt(factor * np.sum(np.einsum("nd,and->a", gradient, spread) ** 2)),
+                               rtol=1e-6)
+    np.testing.assert_allclose(sd, np.sqrt(factor * np.sum(np.einsum("and,nd->an", spread, mean_normals) ** 2, axis=0)),
+                               rtol=1e-6, atol=1e-9)
