@@ -55,7 +55,10 @@ widened to the spread of the left-out shapes' coefficients, the principal
 components of what the others' model cannot represent of them become extra
 modes, and each left-out shape, completed from the same view by the model of
 the others, gives the error to expect for this view (the reported SD is the
-larger of that and the posterior's). Last, the surface not seen may lie off
+larger of that and the posterior's). The models of the shapes but one, each
+completing the same points with the pose free, differ: their spread (a
+jackknife) is added, since another dozen shapes would have made another
+completion. Last, the surface not seen may lie off
 by the size of the residuals as a whole: that is added to every vertex's SD
 and, over the unseen area, to the volume's.
 """
