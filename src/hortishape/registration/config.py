@@ -216,7 +216,14 @@ class RegistrationConfig:
     end_contrast : float, default: 0.15
         ``orientation="axis"`` puts the cavity end on the cavity end, without
         trying the other way, when :attr:`hortishape.align.FruitAxis.contrast`
-        of both scans is at least this (why 0.15: ``docs/design-notes.md``).
+        of both scans is at least this (why 0.15: ``docs/design-notes.md``)
+        and the cavity end of each has at least ``end_cavity`` of its surface
+        in a cavity.
+    end_cavity : float, default: 0.005
+        The least share of a scan's surface in the cavity at its cavity end
+        (:attr:`hortishape.align.FruitAxis.cavities`) for ``end_contrast`` to
+        decide its ends: a dent of a few square millimetres is no stalk
+        cavity (``docs/design-notes.md``).
     axis_turns : int, default: 4
         Turns about the axis that ``orientation="axis"`` tries, equally
         spaced from the one that puts the reference's widest direction
@@ -341,6 +348,7 @@ class RegistrationConfig:
     max_iterations: int = 50
     orientation: str = "axis"
     end_contrast: float = 0.15
+    end_cavity: float = 0.005
     axis_turns: int = 4
     search_iterations: int = 6
     search_finalists: int = 3
@@ -377,6 +385,8 @@ class RegistrationConfig:
             raise ValueError(f"orientation must be 'axis', 'search', 'pca' or 'none', got {self.orientation!r}")
         if not 0 <= self.end_contrast <= 1:
             raise ValueError(f"end_contrast must lie in [0, 1], got {self.end_contrast}")
+        if not 0 <= self.end_cavity <= 1:
+            raise ValueError(f"end_cavity must lie in [0, 1], got {self.end_cavity}")
         if self.axis_turns < 1:
             raise ValueError(f"axis_turns must be >= 1, got {self.axis_turns}")
         if self.affine not in ("stiff", "all", "none"):

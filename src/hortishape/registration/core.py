@@ -30,7 +30,7 @@ from .correspondences import (
 )
 from .elastic import _deform, _land, _rigid_part
 from .folds import _repair_folds
-from .orientation import _choose_orientation, _Orientation, _refined_start, _search_taper, _up_hint
+from .orientation import _choose_orientation, _ends_told, _Orientation, _refined_start, _search_taper, _up_hint
 from .result import IterationRecord, Registration, RegistrationPlan
 from .template import Template, prepare_reference
 from .warp import _placed, _warp_kind, _warp_ridge
@@ -220,10 +220,10 @@ def _beyond_stalk(template: Template, reg: Registration, points: np.ndarray, cfg
     """Whether ``points`` of the scan lie at the registered reference's stalk end (see ``UNCOVERED_AT_STALK``).
 
     False when the reference's cavities do not tell its ends apart
-    (``end_contrast``): it then has no stalk end to go by.
+    (``end_contrast``, ``end_cavity``): it then has no stalk end to go by.
     """
     ax = template.axis()
-    if ax.contrast < cfg.end_contrast or not len(points):
+    if not _ends_told(ax, cfg) or not len(points):
         return False
     along = (template.mesh.vertices - ax.centre) @ ax.direction
     stalk, blossom = reg.vertices[int(np.argmax(along))], reg.vertices[int(np.argmin(along))]

@@ -38,17 +38,22 @@ def _axis_candidates(ref: FruitAxis, tgt: FruitAxis, cfg: RegistrationConfig) ->
 
     Each scan's axis, and its second hypothesis if it has one (see
     :attr:`hortishape.align.FruitAxis.alternative`) against the other's axis:
-    cavity end on cavity end when both ends are told apart by
-    ``end_contrast``, else both ways.
+    cavity end on cavity end when both scans' ends are told apart
+    (:func:`_ends_told`), else both ways.
     """
     pairs = [(ref, tgt)]
     if tgt.alternative is not None:
         pairs.append((ref, tgt.alternative))
     if ref.alternative is not None:
         pairs.append((ref.alternative, tgt))
-    both = [min(a.contrast, b.contrast) < cfg.end_contrast for a, b in pairs]
+    both = [not (_ends_told(a, cfg) and _ends_told(b, cfg)) for a, b in pairs]
     cands = np.concatenate([axis_alignments(a, b, n_turns=cfg.axis_turns, both_ends=e) for (a, b), e in zip(pairs, both)])
     return cands, "searched" if any(both) else "cavity"
+
+
+def _ends_told(axis: FruitAxis, cfg: RegistrationConfig) -> bool:
+    """Whether a scan's cavities tell its ends apart: ``end_contrast`` between them, ``end_cavity`` at one."""
+    return axis.contrast >= cfg.end_contrast and axis.cavities[0] >= cfg.end_cavity
 
 
 def _search_orientation(
