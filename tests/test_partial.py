@@ -120,7 +120,7 @@ def test_cli_fit_partial_writes_the_surface_its_sd_figures_and_picture(sphere, e
 
 
 def test_the_jackknife_in_the_gram_matrix_is_that_of_the_models_built_without_each_shape(sphere, egg_model):
-    from hortishape.partial import _jackknife, _training_shapes, _volume_gradient
+    from hortishape.partial import _as_seen, _jackknife, _training_shapes, _volume_gradient
     from hortishape.surface import vertex_normals
 
     shapes = _training_shapes(egg_model) + egg_model.mean_
@@ -134,8 +134,11 @@ def test_the_jackknife_in_the_gram_matrix_is_that_of_the_models_built_without_ea
     weights = rng.uniform(0.5, 1.0, len(vertices))
     distances = np.einsum("kd,kd->k", normals, points - egg_model.mean_[vertices])
     gradient = _volume_gradient(egg_model.mean_, faces)
-    volume_sd, sd = _jackknife(egg_model, egg_model.n_components_, vertices, normals, weights, 0.3, points,
-                               distances, gradient, mean_normals)
+    centred = _training_shapes(egg_model)
+    gram = centred.reshape(len(centred), -1) @ centred.reshape(len(centred), -1).T
+    seen, vol, along = _as_seen(centred, vertices, normals, gradient, mean_normals)
+    volume_sd, sd = _jackknife(gram, egg_model.n_components_, seen, vol, along, normals, weights, 0.3, points,
+                               distances)
     # each model of eleven eggs, built and conditioned on the points (pose free) in the vertices' space
     completions = []
     for i in range(len(shapes)):

@@ -324,6 +324,20 @@ def _training_shapes(model) -> np.ndarray:
     return ((scores * np.sqrt(model.explained_variance_)) @ model.components_).reshape(len(scores), -1, 3)
 
 
+def _as_seen(shapes: np.ndarray, vertices: np.ndarray, normals: np.ndarray, volume_gradient: np.ndarray,
+             surface_normals: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """The training ``shapes`` (N, n, 3) as a fit sees them, for :func:`_loo_predictive` and :func:`_jackknife`.
+
+    Each along ``normals`` at the fitting ``vertices`` (N, K), its linearised
+    volume (N,), and along ``surface_normals`` at every vertex (N, n; None
+    without them).
+    """
+    seen = np.einsum("kd,akd->ak", normals, shapes[:, vertices])
+    vol = np.einsum("nd,and->a", volume_gradient, shapes)
+    along = None if surface_normals is None else np.einsum("jnd,nd->jn", shapes, surface_normals)
+    return seen, vol, along
+
+
 def _calibration(model, k: int) -> _Calibration | None:
     """Leave-one-out on the training shapes the model holds (its ``scores_``).
 
@@ -373,27 +387,21 @@ def _calibration(model, k: int) -> _Calibration | None:
     return _Calibration(scale, misfit.reshape(len(s), -1, 3))
 
 
-def _loo_predictive(model, vertices: np.ndarray, normals: np.ndarray, weights: np.ndarray, sigma: float,
-                    volume_gradient: np.ndarray, surface_normals: np.ndarray | None
-                    ) -> tuple[float, np.ndarray | None] | None:
+def _loo_predictive(seen: np.ndarray, vol: np.ndarray, along: np.ndarray | None, weights: np.ndarray,
+                    sigma: float) -> tuple[float, np.ndarray | None]:
     """Cross-validated errors of completing a shape seen as these points were seen.
 
     Each training shape in turn is left out, observed where the fitted points
-    observed the surface (``vertices``, along ``normals``, with the fit's
-    weights and noise), and completed by the model of the others (the same
+    observed the surface (``seen``, :func:`_as_seen`, with the fit's weights
+    and noise), and completed by the model of the others (the same
     Gaussian conditioning as the fit, in the Gram matrix of the shapes). What
     the completion gets wrong of the left-out shape, over the N shapes, is
     the error to expect for a new one seen the same way: its volume error's
     RMS (mm^3) and, per vertex, the RMS of the error along the surface normal
     (mm). Unlike the posterior, it does not trust correlations that N shapes
-    only seem to show. None without the training shapes (``scores_``).
+    only seem to show.
     """
-    if not _holds_its_shapes(model):
-        return None
-    x = _training_shapes(model)
-    n_shapes = len(x)
-    seen = np.einsum("kd,akd->ak", normals, x[:, vertices])  # (N, K) each shape as the points see it
-    vol = np.einsum("nd,and->a", volume_gradient, x)  # (N,) linearised volume
+    n_shapes = len(seen)
     eye = np.eye(n_shapes)
     a = np.zeros((n_shapes, n_shapes))
     for i in range(n_shapes):
@@ -406,38 +414,30 @@ def _loo_predictive(model, vertices: np.ndarray, normals: np.ndarray, weights: n
         beta = np.linalg.solve(h, (y_seen * weights) @ (w @ seen) / sigma**2)
         a[i] = w - m.T @ beta  # the error of the completion, as a combination of the shapes
     volume_rms = float(np.sqrt(np.mean((a @ vol) ** 2)))
-    if surface_normals is None:
+    if along is None:
         return volume_rms, None
-    along = a @ np.einsum("jnd,nd->jn", x, surface_normals)  # (N, n) errors along the normals
-    return volume_rms, np.sqrt(np.mean(along**2, axis=0))
+    return volume_rms, np.sqrt(np.mean((a @ along) ** 2, axis=0))  # the errors along the normals
 
 
-def _jackknife(model, k: int, vertices: np.ndarray, normals: np.ndarray, weights: np.ndarray, sigma: float,
-               points: np.ndarray, distances: np.ndarray, volume_gradient: np.ndarray,
-               surface_normals: np.ndarray | None) -> tuple[float, np.ndarray | None] | None:
+def _jackknife(gram: np.ndarray, k: int, seen: np.ndarray, vol: np.ndarray, along: np.ndarray | None,
+               normals: np.ndarray, weights: np.ndarray, sigma: float, points: np.ndarray,
+               distances: np.ndarray) -> tuple[float, np.ndarray | None]:
     """How much the completion rests on the few shapes the model was built from.
 
     The model of the training shapes but one (their mean and sample
     covariance, ``k`` modes at most), for each shape in turn, completes the
     same observations: the fitted ``points`` (in the model's frame), their
     signed ``distances`` from the model's mean along the surface ``normals``
-    at the fitting ``vertices``, with the fit's weights and noise, the pose
+    at the fitting vertices, with the fit's weights and noise, the pose
     free. The jackknife spread of the N completions' volume (mm^3) and, per
-    vertex, of their position along ``surface_normals`` (mm). A model of a
-    dozen shapes can complete the side no view reached quite otherwise
-    without one of them, most of all by placing a larger or smaller fruit
-    farther or nearer; the posterior, which trusts the model, does not see
-    that. All in the N x N Gram matrix of the shapes. None without the
-    training shapes (``scores_``).
+    vertex, of their position along the surface normals (mm; ``seen``,
+    ``vol`` and ``along`` are the shapes as :func:`_as_seen` gives them). A
+    model of a dozen shapes can complete the side no view reached quite
+    otherwise without one of them, most of all by placing a larger or
+    smaller fruit farther or nearer; the posterior, which trusts the model,
+    does not see that. All in the N x N ``gram`` matrix of the shapes.
     """
-    if not _holds_its_shapes(model):
-        return None
-    x = _training_shapes(model)
-    n_shapes = len(x)
-    flat = x.reshape(n_shapes, -1)
-    gram = flat @ flat.T
-    seen = np.einsum("kd,akd->ak", normals, x[:, vertices])  # (N, K) each shape as the points see it
-    vol = np.einsum("nd,and->a", volume_gradient, x)  # (N,) linearised volume
+    n_shapes = len(seen)
     pose = np.concatenate([np.cross(points, normals), normals], axis=1)  # (K, 6) moving the points
     eye = np.eye(n_shapes)
     completions = np.zeros((n_shapes, n_shapes))  # each completion as a combination of the shapes
@@ -457,16 +457,16 @@ def _jackknife(model, k: int, vertices: np.ndarray, normals: np.ndarray, weights
     spread = completions - completions.mean(axis=0)
     factor = (n_shapes - 1) / n_shapes
     volume_sd = float(np.sqrt(factor * np.sum((spread @ vol) ** 2)))
-    if surface_normals is None:
+    if along is None:
         return volume_sd, None
-    along = spread @ np.einsum("jnd,nd->jn", x, surface_normals)  # (N, n)
-    return volume_sd, np.sqrt(factor * np.sum(along**2, axis=0))
+    return volume_sd, np.sqrt(factor * np.sum((spread @ along) ** 2, axis=0))
 
 
 class _Fitter:
     """The model's arrays restricted to the fitting vertices, and the Gauss-Newton steps."""
 
-    def __init__(self, model, k: int, fit_idx: np.ndarray, calibration: _Calibration | None = None) -> None:
+    def __init__(self, model, k: int, fit_idx: np.ndarray, calibration: _Calibration | None = None, *,
+                 shapes: bool = False) -> None:
         n = model.n_points_
         self.mean = model.mean_
         self.faces = model.faces_
@@ -479,6 +479,10 @@ class _Fitter:
         self.basis = basis
         self.k = len(basis)
         self.k_model = k  # the model's modes among them
+        # with ``shapes``, the training shapes and their Gram matrix for the posterior's checks (None: not held)
+        self.shapes = _training_shapes(model) if shapes and _holds_its_shapes(model) else None
+        flat = None if self.shapes is None else self.shapes.reshape(len(self.shapes), -1)
+        self.gram = None if flat is None else flat @ flat.T
         self.idx = fit_idx
         # the fitting vertices' rows, laid out for gathering: (n_fit, 3, K)
         self.mean_fit = self.mean[fit_idx]
@@ -680,7 +684,7 @@ class PartialFitter:
         n = model.n_points_
         self.fit_idx = np.unique(np.linspace(0, n - 1, min(n, FIT_VERTICES)).astype(np.int64))
         self.calibration = _calibration(model, self.k) if calibrate else None
-        self.fitter = _Fitter(model, self.k, self.fit_idx, self.calibration)
+        self.fitter = _Fitter(model, self.k, self.fit_idx, self.calibration, shapes=self.calibrate)
         self.mean_normals = vertex_normals(model.mean_, model.faces_)[self.fit_idx]
         self.tree = cKDTree(model.mean_[self.fit_idx])
         self.axis = fruit_axis(model.mean_, model.faces_)
@@ -885,21 +889,21 @@ def _posterior(fitter, model, y, nrm, w, sigma, rotation, translation, c, *, cal
     volume_sd = float(np.sqrt(max(grad @ cov @ grad, 0.0)))
     # the posterior trusts the model's correlations; the training shapes, each completed from what
     # these points saw, show how far to trust them: the larger of the two is kept
-    cv = _loo_predictive(model, v, normals_x[v], w[keep], sigma, volume_gradient,
-                         normals_x if per_vertex else None) if calibrate else None
-    if cv is not None:
-        volume_sd = max(volume_sd, cv[0])
-        if cv[1] is not None:
-            sd = np.maximum(sd, cv[1])
-    # and a model of as many other shapes would have completed it otherwise
-    points = y[keep] @ rotation.T + translation
-    distances = np.einsum("kd,kd->k", normals_x[v], points - model.mean_[v])
-    jk = _jackknife(model, fitter.k_model, v, normals_x[v], w[keep], sigma, points, distances, volume_gradient,
-                    normals_x if per_vertex else None) if calibrate else None
-    if jk is not None:
-        volume_sd = float(np.hypot(volume_sd, jk[0]))
-        if jk[1] is not None:
-            sd = np.hypot(sd, jk[1])
+    if calibrate and fitter.shapes is not None:
+        seen, vol, along_shapes = _as_seen(fitter.shapes, v, normals_x[v], volume_gradient,
+                                           normals_x if per_vertex else None)
+        cv_volume, cv_sd = _loo_predictive(seen, vol, along_shapes, w[keep], sigma)
+        volume_sd = max(volume_sd, cv_volume)
+        if cv_sd is not None:
+            sd = np.maximum(sd, cv_sd)
+        # and a model of as many other shapes would have completed it otherwise
+        points = y[keep] @ rotation.T + translation
+        distances = np.einsum("kd,kd->k", normals_x[v], points - model.mean_[v])
+        jk_volume, jk_sd = _jackknife(fitter.gram, fitter.k_model, seen, vol, along_shapes, normals_x[v], w[keep],
+                                      sigma, points, distances)
+        volume_sd = float(np.hypot(volume_sd, jk_volume))
+        if jk_sd is not None:
+            sd = np.hypot(sd, jk_sd)
     return _Posterior(x, sd, cov, volume, volume_sd, keep)
 
 
