@@ -97,6 +97,12 @@ def _set_offset(offset):
     _batch._INITIALIZED["offset"] = offset
 
 
+def _kill_own_group_if_busy(dask_worker):
+    if dask_worker.state.executing:
+        os.killpg(os.getpgid(0), signal.SIGKILL)
+    return False
+
+
 def test_run_jobs_on_the_cluster(cluster):
     address, _ = cluster
     seen = []
@@ -117,11 +123,22 @@ def test_a_worker_killed_mid_build_costs_only_its_task(cluster, scans, local, tm
 
     thread = threading.Thread(target=build)
     thread.start()
-    # kill the second worker (and its nanny) while the first pass is under way
+    # once the first pass is under way, the second worker kills itself (and its nanny) while it runs a task:
+    # deciding and killing in the worker's event loop means the scheduler cannot have its result yet
     deadline = time.time() + 300
-    while len(list((out / "work" / "first-pass").glob("*.json"))) < 3 and time.time() < deadline:
+    while len(list((out / "work" / "first-pass").glob("*.json"))) < 2 and time.time() < deadline:
         time.sleep(0.05)
-    os.killpg(workers[1].pid, signal.SIGKILL)
+    from distributed import Client
+
+    with Client(address, timeout="60s") as client:
+        second = next(a for a, w in client.scheduler_info()["workers"].items() if w["name"] == "w2")
+        while workers[1].poll() is None and time.time() < deadline:
+            try:
+                client.run(_kill_own_group_if_busy, workers=[second], on_error="return")
+            except Exception:  # the worker died under the call
+                pass
+            time.sleep(0.02)
+    assert workers[1].wait(timeout=60) is not None
     thread.join(timeout=600)
     assert not thread.is_alive() and "build" in result
     built = result["build"]
