@@ -8,10 +8,14 @@ from hortishape.errors import MeshError
 from hortishape.mesh import Mesh
 from hortishape.surface import (
     barycentric_interpolate,
+    boundary_loops,
     check_closed_surface,
+    checked_surface,
     closest_points,
     face_areas,
+    fill_holes,
     remesh,
+    signed_volume,
     vertex_normals,
 )
 
@@ -71,3 +75,53 @@ def test_check_closed_surface_errors():
         check_closed_surface(Mesh(s.vertices, f2))  # non-manifold
     flipped = Mesh(s.vertices, s.faces[:, ::-1])
     assert check_closed_surface(flipped) == -1.0
+
+
+def _without(mesh: trimesh.Trimesh, drop: np.ndarray) -> Mesh:
+    """``mesh`` without the faces ``drop``, and without the vertices no face uses then."""
+    cut = trimesh.Trimesh(mesh.vertices, mesh.faces[~drop], process=False)
+    cut.remove_unreferenced_vertices()
+    return Mesh(cut.vertices, cut.faces)
+
+
+def test_a_hole_is_closed_by_a_patch_that_continues_the_surface():
+    # an apple-sized sphere missing a cap of 5 % of its surface (3.5 mm high)
+    sphere = trimesh.creation.icosphere(5, radius=35.0)
+    scan = _without(sphere, sphere.triangles_center[:, 2] > 35.0 * 0.9)
+    sign, loops = checked_surface(scan, allow_holes=True)
+    assert sign == 1.0 and len(loops) == 1
+    with pytest.raises(MeshError, match="not closed"):
+        check_closed_surface(scan)
+    out = fill_holes(scan)
+    assert check_closed_surface(out.mesh) == 1.0 and out.n_holes == 1
+    # the input first and unchanged, the patch after it
+    np.testing.assert_array_equal(out.mesh.vertices[: scan.n_vertices], scan.vertices)
+    np.testing.assert_array_equal(out.mesh.faces[: len(scan.faces)], scan.faces)
+    assert not out.filled[: len(scan.faces)].any() and out.filled[len(scan.faces):].all()
+    assert out.n_input_vertices == scan.n_vertices
+    assert out.hole_share == pytest.approx(0.05, abs=0.005)
+    # a flat cap would lie 3.5 mm inside the sphere; the patch is within 0.35 mm of it (measured 0.32)
+    radius = np.linalg.norm(out.mesh.vertices[scan.n_vertices:], axis=1)
+    assert np.abs(radius - 35.0).max() < 0.35
+    assert abs(signed_volume(out.mesh.vertices, out.mesh.faces)) == pytest.approx(4 / 3 * np.pi * 35.0**3, rel=2e-3)
+
+
+def test_several_holes_and_holes_that_touch():
+    sphere = trimesh.creation.icosphere(4, radius=30.0)
+    z = sphere.triangles_center[:, 2]
+    scan = _without(sphere, (z > 27.0) | (z < -28.0))
+    loops = boundary_loops(scan.faces, scan.n_vertices)
+    assert len(loops) == 2
+    # each rim runs the way its faces wind: every step is an edge of a face
+    edges = {tuple(e) for e in np.vstack([scan.faces[:, [0, 1]], scan.faces[:, [1, 2]], scan.faces[:, [2, 0]]])}
+    assert all((a, b) in edges for lp in loops for a, b in zip(lp, np.roll(lp, -1)))
+    assert fill_holes(scan).n_holes == 2
+    assert fill_holes(Mesh(sphere.vertices, sphere.faces)).n_holes == 0
+    # two faces apart at one vertex: two holes meeting there
+    v0 = sphere.faces[0, 0]
+    around = np.flatnonzero((sphere.faces == v0).any(axis=1))
+    ring = [f for f in around if not set(sphere.faces[f]) & (set(sphere.faces[around[0]]) - {v0})]
+    drop = np.zeros(len(sphere.faces), dtype=bool)
+    drop[[around[0], ring[0]]] = True
+    with pytest.raises(MeshError, match="touch at a vertex"):
+        fill_holes(Mesh(sphere.vertices, sphere.faces[~drop]))

@@ -24,15 +24,20 @@ from .mesh import Mesh, unique_edges
 
 __all__ = [
     "ClosestPoints",
+    "FilledSurface",
     "Remeshed",
     "barycentric_interpolate",
+    "boundary_loops",
     "check_closed_surface",
+    "checked_surface",
     "closest_points",
     "component_labels",
     "face_areas",
     "face_normals",
+    "fill_holes",
     "mean_edge_length",
     "remesh",
+    "rim_edges",
     "vertex_areas",
     "vertex_normals",
 ]
@@ -209,7 +214,8 @@ def component_labels(faces, n_vertices: int) -> tuple[int, np.ndarray]:
     return int(n_comp), labels
 
 
-def check_closed_surface(mesh: Mesh, *, name: str = "mesh", allow_degenerate: bool = False) -> float:
+def check_closed_surface(mesh: Mesh, *, name: str = "mesh", allow_degenerate: bool = False,
+                         allow_holes: bool = False) -> float:
     """Check that ``mesh`` is one closed, consistently oriented triangle surface.
 
     Registration needs a closed surface: rays cast along normals must have an
@@ -223,12 +229,17 @@ def check_closed_surface(mesh: Mesh, *, name: str = "mesh", allow_degenerate: bo
     allow_degenerate : bool, default: False
         If False, zero-area triangles raise :class:`MeshError`; if True they are
         tolerated (a ray never hits them and their normal is zero).
+    allow_holes : bool, default: False
+        If True, boundary edges (holes, as a structured-light scan has where
+        the scanner did not see) are allowed; the rest is checked as for a
+        closed surface. See :func:`fill_holes`.
 
     Returns
     -------
     float
-        +1.0 if the faces wind outward (positive enclosed volume), -1.0 if they
-        wind inward. Callers multiply normals by it.
+        +1.0 if the faces wind outward (positive enclosed volume, holes
+        counted as closed), -1.0 if they wind inward. Callers multiply normals
+        by it.
 
     Raises
     ------
@@ -243,6 +254,21 @@ def check_closed_surface(mesh: Mesh, *, name: str = "mesh", allow_degenerate: bo
     >>> s = trimesh.creation.icosphere(2)
     >>> check_closed_surface(Mesh(s.vertices, s.faces))
     1.0
+    """
+    return checked_surface(mesh, name=name, allow_degenerate=allow_degenerate, allow_holes=allow_holes)[0]
+
+
+def checked_surface(mesh: Mesh, *, name: str = "mesh", allow_degenerate: bool = False,
+                    allow_holes: bool = False) -> tuple[float, list[np.ndarray]]:
+    """:func:`check_closed_surface`, and the holes' rims (:func:`boundary_loops`) found on the way.
+
+    Examples
+    --------
+    >>> import trimesh
+    >>> s = trimesh.creation.icosphere(1)
+    >>> sign, loops = checked_surface(Mesh(s.vertices, s.faces[1:]), allow_holes=True)
+    >>> sign, [len(lp) for lp in loops]
+    (1.0, [3])
     """
     v, f = mesh.vertices, mesh.faces
     n = len(v)
@@ -270,7 +296,8 @@ def check_closed_surface(mesh: Mesh, *, name: str = "mesh", allow_degenerate: bo
             "(a directed edge is used by two faces)"
         )
     reverse = sorted_keys(1, 0)
-    if not np.array_equal(key, reverse):
+    closed = np.array_equal(key, reverse)
+    if not allow_holes and not closed:
         n_open = int((~np.isin(reverse, key)).sum())
         raise MeshError(
             f"{name}: the surface is not closed ({n_open} boundary edges); "
@@ -296,7 +323,230 @@ def check_closed_surface(mesh: Mesh, *, name: str = "mesh", allow_degenerate: bo
         if bad.any():
             raise MeshError(f"{name}: {int(bad.sum())} degenerate (zero-area) triangles")
     vol = signed_volume(v, f)
-    return 1.0 if vol >= 0 else -1.0
+    loops = [] if closed else boundary_loops(f, n, name=name)
+    # each hole closed by a fan about its centroid, wound as its rim's faces
+    vol += sum(signed_volume(np.vstack([v, v[lp].mean(axis=0)]),
+                             np.stack([np.roll(lp, -1), lp, np.full(len(lp), n)], axis=1)) for lp in loops)
+    return (1.0 if vol >= 0 else -1.0), loops
+
+
+def rim_edges(faces, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
+    """The edges ``start[i] -> end[i]`` of faces whose reverse no face has: the rims of a surface's holes.
+
+    Examples
+    --------
+    >>> import trimesh
+    >>> s = trimesh.creation.icosphere(1)
+    >>> start, end = rim_edges(s.faces[1:], len(s.vertices))
+    >>> len(start)
+    3
+    """
+    f = np.asarray(faces, dtype=np.int64)
+    n = int(n_vertices)
+    a = f.ravel()
+    b = f[:, [1, 2, 0]].ravel()
+    # sort and search: np.isin is slower
+    known = np.sort(a * n + b)
+    rev = b * n + a
+    open_ = known[np.minimum(np.searchsorted(known, rev), len(known) - 1)] != rev
+    return a[open_], b[open_]
+
+
+def boundary_loops(faces, n_vertices: int, *, name: str = "mesh") -> list[np.ndarray]:
+    """The holes of a consistently oriented manifold surface: each rim's vertices in order.
+
+    A rim runs the way its faces wind: from ``loop[i]`` to ``loop[i + 1]`` is
+    an edge of a face, whose reverse no face has.
+
+    Parameters
+    ----------
+    faces : (m, 3) array_like of int
+    n_vertices : int
+    name : str, default: "mesh"
+        What to call the mesh in error messages.
+
+    Returns
+    -------
+    list of (k,) int64 ndarray
+        One per hole, longest first; empty for a closed surface.
+
+    Raises
+    ------
+    MeshError
+        If two holes touch at a vertex (its rims cannot be told apart).
+
+    Examples
+    --------
+    >>> import trimesh
+    >>> s = trimesh.creation.icosphere(1)
+    >>> loops = boundary_loops(s.faces[1:], len(s.vertices))
+    >>> [len(lp) for lp in loops]
+    [3]
+    """
+    start, end = rim_edges(faces, n_vertices)
+    if len(start) == 0:
+        return []
+    if len(np.unique(start)) < len(start):
+        raise MeshError(f"{name}: two holes touch at a vertex; the surface is not a manifold there")
+    following = dict(zip(start.tolist(), end.tolist()))
+    loops, seen = [], set()
+    for first in start.tolist():  # the rims' vertices only, a few thousand at most
+        if first in seen:
+            continue
+        loop = [first]
+        seen.add(first)
+        nxt = following[first]
+        while nxt != first:
+            loop.append(nxt)
+            seen.add(nxt)
+            nxt = following[nxt]
+        loops.append(np.asarray(loop, dtype=np.int64))
+    return sorted(loops, key=len, reverse=True)
+
+
+@dataclass(frozen=True)
+class FilledSurface:
+    """A surface with its holes closed (result of :func:`fill_holes`).
+
+    Attributes
+    ----------
+    mesh : Mesh
+        The input's vertices and faces first, then the patches' vertices and
+        faces: a closed surface.
+    filled : (m,) bool ndarray
+        Which faces of ``mesh`` are patches (not part of the input).
+    n_holes : int
+    hole_area : float
+        Area of the patches (the input's units squared).
+    n_input_vertices : int
+        The first ``n_input_vertices`` vertices of ``mesh`` are the input's.
+    """
+
+    mesh: Mesh
+    filled: np.ndarray
+    n_holes: int
+    hole_area: float
+    n_input_vertices: int
+
+    @property
+    def hole_share(self) -> float:
+        """The patches' share of the closed surface's area."""
+        total = float(face_areas(self.mesh.vertices, self.mesh.faces).sum())
+        return self.hole_area / total if total > 0 else 0.0
+
+
+#: Rings of the surface around a hole's rim that the patch's quadric is fitted to.
+RIM_RINGS = 3
+
+
+def fill_holes(mesh: Mesh, *, name: str = "mesh", loops: list[np.ndarray] | None = None) -> FilledSurface:
+    """Close every hole of a surface with a smooth patch.
+
+    Each rim is closed by rings of vertices towards its centroid, spaced like
+    the rim's edges, and the patch is then lifted onto the quadric height
+    field fitted to the surface around the rim (``RIM_RINGS`` rings of it), so
+    that it continues the surface's curvature across the hole instead of
+    capping it flat. The input's vertices and faces come first and are
+    unchanged.
+
+    Parameters
+    ----------
+    mesh : Mesh
+        A consistently oriented manifold surface, open or closed.
+    name : str, default: "mesh"
+        What to call the mesh in error messages.
+    loops : list of (k,) int ndarray, optional
+        Its rims, if known (from :func:`checked_surface`).
+
+    Returns
+    -------
+    FilledSurface
+
+    Examples
+    --------
+    >>> import trimesh
+    >>> s = trimesh.creation.icosphere(3, radius=10.0)
+    >>> open_ = Mesh(s.vertices, s.faces[s.triangles_center[:, 2] < 8.0])
+    >>> out = fill_holes(open_)
+    >>> out.n_holes, round(abs(signed_volume(out.mesh.vertices, out.mesh.faces)) / (4 / 3 * np.pi * 1000), 2)
+    (1, 1.0)
+    """
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    f = np.asarray(mesh.faces, dtype=np.int64)
+    n = len(v)
+    loops = boundary_loops(f, n, name=name) if loops is None else loops
+    if not loops:
+        return FilledSurface(mesh, np.zeros(len(f), dtype=bool), 0, 0.0, n)
+    new_v, new_f, spans = [], [], []
+    count = n
+    for loop in loops:
+        first_new = count
+        rim = v[loop]
+        m = len(loop)
+        centre = rim.mean(axis=0)
+        step = np.linalg.norm(np.roll(rim, -1, axis=0) - rim, axis=1)
+        edge = float(step.mean())
+        radius = float(np.linalg.norm(rim - centre, axis=1).mean())
+        rings = int(np.clip(round(radius / max(edge, 1e-12)), 1, 50))
+        # the rim by arc length, so that each ring's vertices can be spread along it evenly
+        arc = np.concatenate([[0.0], np.cumsum(step)]) / max(float(step.sum()), 1e-300)
+        closed = np.vstack([rim, rim[:1]])
+        idx, at = [loop], [arc[:-1]]
+        for r in range(1, rings):
+            # fewer vertices inwards, so that the patch's triangles keep the rim's size
+            k = max(3, round(m * (rings - r) / rings))
+            u = np.arange(k) / k
+            on_rim = np.stack([np.interp(u, arc, closed[:, d]) for d in range(3)], axis=1)
+            new_v.append(on_rim + (centre - on_rim) * (r / rings))
+            idx.append(np.arange(count, count + k))
+            at.append(u)
+            count += k
+        new_v.append(centre[None])
+        c = count
+        count += 1
+        spans.append((first_new, count))
+        for outer, inner, uo, ui in zip(idx[:-1], idx[1:], at[:-1], at[1:]):
+            # zip the two rings: every step advances one of them (by the arc position it
+            # reaches); the rim's edges run outer[i] -> outer[i + 1], the patch runs them back
+            mo, mi = len(outer), len(inner)
+            reach = np.concatenate([np.append(uo[1:], 1.0), np.append(ui[1:], 1.0)])
+            is_outer = np.concatenate([np.ones(mo, dtype=bool), np.zeros(mi, dtype=bool)])
+            order = np.argsort(reach, kind="stable")
+            is_outer = is_outer[order]
+            io = np.concatenate([[0], np.cumsum(is_outer)[:-1]])
+            ii = np.concatenate([[0], np.cumsum(~is_outer)[:-1]])
+            o0, o1 = outer[io % mo], outer[(io + 1) % mo]
+            i0, i1 = inner[ii % mi], inner[(ii + 1) % mi]
+            new_f.append(np.where(is_outer[:, None], np.stack([o1, o0, i0], axis=1), np.stack([o0, i0, i1], axis=1)))
+        inner = idx[-1]
+        j = np.roll(np.arange(len(inner)), -1)
+        new_f.append(np.stack([inner[j], inner, np.full(len(inner), c)], axis=1))
+    verts = np.vstack([v, *new_v])
+    faces = np.vstack([f, *new_f])
+    # each patch is lifted onto the quadric height field that fits the surface around its rim:
+    # a fruit's skin is smooth, and a quadric continues its curvature across a hole
+    adj = sp.csr_matrix((np.ones(3 * len(f)), (f.ravel(), f[:, [1, 2, 0]].ravel())), shape=(n, n))
+    adj = (adj + adj.T).tocsr()
+    for loop, (lo, hi) in zip(loops, spans):
+        near = np.zeros(n)
+        near[loop] = 1.0
+        for _ in range(RIM_RINGS):
+            near = near + adj @ near
+        around = v[near > 0]
+        centre = v[loop].mean(axis=0)
+        # the rim's plane: the direction the points around it spread least in is its normal
+        _, _, (e1, e2, normal) = np.linalg.svd(around - around.mean(axis=0), full_matrices=False)
+        x, y = (around - centre) @ e1, (around - centre) @ e2
+        design = np.stack([x * x, x * y, y * y, x, y, np.ones_like(x)], axis=1)
+        coef, *_ = np.linalg.lstsq(design, (around - centre) @ normal, rcond=None)
+        p = verts[lo:hi] - centre
+        px, py = p @ e1, p @ e2
+        height = np.stack([px * px, px * py, py * py, px, py, np.ones_like(px)], axis=1) @ coef
+        verts[lo:hi] = centre + np.outer(px, e1) + np.outer(py, e2) + np.outer(height, normal)
+    filled = np.zeros(len(faces), dtype=bool)
+    filled[len(f):] = True
+    area = float(face_areas(verts, faces[filled]).sum())
+    return FilledSurface(Mesh(verts, faces), filled, len(loops), area, n)
 
 
 # ----------------------------------------------------------------------------
