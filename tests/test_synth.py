@@ -316,3 +316,24 @@ def test_a_depth_view_sees_the_near_side_only_and_the_views_are_written_apart(tm
     cloud = read_points(tmp_path / "views" / "apple_001.view1.ply")
     scan = read_mesh(tmp_path / "apple_001.ply")
     assert cloud.normals is not None and closest_points(scan, cloud.points).distances.mean() < 0.3
+
+
+def test_holes_cut_a_share_of_the_surface_and_keep_the_truth():
+    from hortishape.surface import checked_surface, component_labels, face_areas
+
+    closed = synth.make_instance("apple", random_state=4, n_vertices=20000)
+    holed = synth.make_instance("apple", random_state=4, n_vertices=20000, holes=0.08)
+    _, loops = checked_surface(holed.mesh, allow_holes=True)
+    assert 1 <= len(loops) <= 3
+    assert component_labels(holed.mesh.faces, holed.mesh.n_vertices)[0] == 1
+    cut = 1.0 - face_areas(holed.mesh.vertices, holed.mesh.faces).sum() / face_areas(
+        closed.mesh.vertices, closed.mesh.faces).sum()
+    assert cut == pytest.approx(0.08, abs=0.01)
+    # what is left is the closed scan's, vertex for vertex, with its truth
+    assert len(holed.canonical) == len(holed.parts) == holed.mesh.n_vertices
+    kept = np.isin(closed.mesh.vertices.view("f8,f8,f8").ravel(), holed.mesh.vertices.view("f8,f8,f8").ravel())
+    np.testing.assert_array_equal(closed.mesh.vertices[kept], holed.mesh.vertices)
+    np.testing.assert_array_equal(closed.canonical[kept], holed.canonical)
+    assert holed.landmarks["stalk_tip"] == pytest.approx(closed.landmarks["stalk_tip"])
+    with pytest.raises(HortishapeError, match="holes"):
+        synth.make_instance("apple", random_state=4, holes=0.6)

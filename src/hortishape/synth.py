@@ -51,7 +51,15 @@ from ._batch import run_jobs
 from ._rng import RandomState, as_generator, spawn_seeds
 from .errors import HortishapeError
 from .mesh import Mesh
-from .surface import barycentric_interpolate, closest_points, face_areas, signed_volume, vertex_normals
+from .surface import (
+    barycentric_interpolate,
+    closest_points,
+    component_labels,
+    face_areas,
+    rim_edges,
+    signed_volume,
+    vertex_normals,
+)
 
 __all__ = [
     "PRODUCTS",
@@ -807,6 +815,7 @@ def make_instance(
     volume: bool = False,
     name: str | None = None,
     family: str = "standard",
+    holes: float = 0.0,
 ) -> SyntheticInstance:
     """Make one synthetic scan of ``product`` with its ground truth.
 
@@ -845,6 +854,12 @@ def make_instance(
         ``"conical"`` (narrowing to the blossom end), ``"ribbed"`` (five
         strong ribs); peppers ``"five-lobed"``, ``"unequal"`` (3-5 lobes of
         unequal size), ``"conical"`` (pointed, without the blossom-end dent).
+    holes : float, default: 0.0
+        Share of the surface cut away in one to three round holes at random
+        places, as a structured-light scan misses where the scanner did not
+        see (0: a closed surface). The truth (``canonical``, the landmarks)
+        is that of the surface that is left; the volumes are of the whole
+        fruit.
 
     Returns
     -------
@@ -860,6 +875,8 @@ def make_instance(
         raise HortishapeError(f"unknown product {product!r}: choose from {', '.join(PRODUCTS)}")
     if noise < 0 or not math.isfinite(noise):
         raise HortishapeError(f"noise must be a non-negative number of millimetres, got {noise}")
+    if not 0.0 <= holes < 0.5:
+        raise HortishapeError(f"holes must be a share of the surface from 0 to 0.5, got {holes}")
     if n_vertices is not None and not n_vertices >= MIN_VERTICES:
         raise HortishapeError(f"n_vertices must be at least {MIN_VERTICES:,}, got {n_vertices}")
     spec = PRODUCTS[product]
@@ -918,6 +935,9 @@ def make_instance(
     vol = _ct_volume(grid, lo, h, canon, deform, product, rng) if volume else None
     # after the CT volume, so that the CT volume and everything before are as without it
     mri = _mri_volume(grid, lo, h, deform, lm_canon["bottom"], rng) if volume else None
+    if holes > 0:  # last, so that everything before is as without holes
+        kept, faces = _cut_holes(verts, faces, holes, rng)
+        verts, canonical, parts = verts[kept], canonical[kept], parts[kept]
     return SyntheticInstance(
         name=name or product,
         product=product,
@@ -934,6 +954,42 @@ def make_instance(
         volume=vol,
         mri_volume=mri,
     )
+
+
+def _cut_holes(verts: np.ndarray, faces: np.ndarray, share: float, rng) -> tuple[np.ndarray, np.ndarray]:
+    """Cut ``share`` of the surface away in 1-3 round holes; returns the vertices kept and the new faces.
+
+    Each hole takes the faces nearest a random point of the surface until it
+    holds its part of the share. The largest piece left is kept (a hole can
+    cut a stalk off), and faces at a vertex where two holes touch go too, so
+    that every rim is a simple loop.
+    """
+    area = face_areas(verts, faces)
+    centres = verts[faces].mean(axis=1)
+    n_holes = int(rng.integers(1, 4))
+    drop = np.zeros(len(faces), dtype=bool)
+    for point in centres[rng.choice(len(faces), n_holes, p=area / area.sum())]:
+        order = np.argsort(np.linalg.norm(centres - point, axis=1))
+        drop[order[: int(np.searchsorted(np.cumsum(area[order]), share / n_holes * area.sum())) + 1]] = True
+    f = faces[~drop]
+    n = len(verts)
+    for _ in range(20):
+        starts, counts = np.unique(rim_edges(f, n)[0], return_counts=True)
+        touching = starts[counts > 1]
+        if len(touching) == 0:
+            break
+        f = f[~np.isin(f, touching).any(axis=1)]
+    n_comp, labels = component_labels(f, n)
+    used = np.zeros(n, dtype=bool)
+    used[f.ravel()] = True
+    if n_comp > 1:
+        largest = np.bincount(labels[used]).argmax()
+        f = f[labels[f[:, 0]] == largest]
+        used[:] = False
+        used[f.ravel()] = True
+    index = np.full(n, -1, dtype=np.int64)
+    index[used] = np.arange(int(used.sum()))
+    return used, index[f]
 
 
 def _ct_volume(grid, origin, h, canon, deform, product, rng):
@@ -1289,9 +1345,9 @@ def read_truth(mesh_path) -> dict:
 
 
 def _make_and_write(args) -> tuple[str, int, list[float]]:
-    product, seed, index, out_dir, pose, noise, n_vertices, volume, entropy, family = args
+    product, seed, index, out_dir, pose, noise, n_vertices, volume, entropy, family, holes = args
     inst = make_instance(product, random_state=seed, pose=pose, noise=noise, n_vertices=n_vertices,
-                         volume=volume, name=f"{product}_{index:03d}", family=family)
+                         volume=volume, name=f"{product}_{index:03d}", family=family, holes=holes)
     write_instance(inst, out_dir, random_seed=entropy)
     return inst.name, inst.mesh.n_vertices, inst.dimensions.tolist()
 
@@ -1332,6 +1388,7 @@ def write_population(
     n_jobs: int | None = None,
     progress: Callable[[Iterable], Iterable] | None = None,
     family: str = "standard",
+    holes: float = 0.0,
 ) -> list[dict]:
     """Make ``n`` instances of ``product`` and write them to ``out_dir``.
 
@@ -1344,7 +1401,7 @@ def write_population(
     n : int
     out_dir : path
     random_state : int or None, default: None
-    pose, noise, n_vertices, family : see :func:`make_instance`
+    pose, noise, n_vertices, family, holes : see :func:`make_instance`
     volumes : bool, default: False
         Also write a CT-like volume per instance under ``out_dir/volumes``
         and an MRI-like one under ``out_dir/volumes-mri``.
@@ -1367,7 +1424,7 @@ def write_population(
     seeds = spawn_seeds(random_state, n)
     if family not in PRODUCTS[product].families:
         raise HortishapeError(f"{product} has no family {family!r}: choose from {', '.join(PRODUCTS[product].families)}")
-    jobs = [(product, s, i, str(out_dir), pose, noise, n_vertices, volumes, random_state, family)
+    jobs = [(product, s, i, str(out_dir), pose, noise, n_vertices, volumes, random_state, family, holes)
             for i, s in enumerate(seeds)]
     results = run_jobs(_make_and_write, jobs, n_jobs=n_jobs, progress=progress)
     if views:
