@@ -65,20 +65,31 @@ def _synth_digest() -> str:
     return hashlib.sha256(Path(synth.__file__).read_bytes()).hexdigest()[:10]
 
 
-def make_cases(product, pose, n, cache: Path, family: str = "standard", seed: int = 1000, noise: float = 0.0):
-    """Synthetic instances saved as npz (so the worker's memory is only the registration's)."""
+def make_cases(product, pose, n, cache: Path, family: str = "standard", seed: int = 1000, noise: float = 0.0,
+               holes: float = 0.0):
+    """Synthetic instances saved as npz (so the worker's memory is only the registration's).
+
+    With ``holes``, the targets (not the reference, instance 0) are scans with
+    holes (``hv``, ``hf``: registered), the truth that of the same instance
+    closed (``v``, ``f``, ``c``: made again without the holes, which are cut last).
+    """
     from hortishape import synth
 
     out = []
     digest = _synth_digest()
     tag = "" if (family, seed) == ("standard", 1000) else f"{family}_{seed}_"
     tag += f"noise{noise:g}_" if noise > 0 else ""
+    tag += f"holes{holes:g}_" if holes > 0 else ""
     for i in range(n):
         fn = cache / f"{product}_{pose}_{tag}{i}_{digest}.npz"
         if not fn.exists():
             inst = synth.make_instance(product, random_state=seed + i, pose=pose, family=family, noise=noise)
+            cut = synth.make_instance(product, random_state=seed + i, pose=pose, family=family, noise=noise,
+                                      holes=holes) if holes > 0 and i > 0 else inst
             np.savez(
                 fn,
+                hv=cut.mesh.vertices,
+                hf=cut.mesh.faces,
                 v=inst.mesh.vertices,
                 f=inst.mesh.faces,
                 c=inst.canonical,
@@ -94,7 +105,8 @@ def _load(fn):
     from hortishape.mesh import Mesh
 
     d = np.load(fn)
-    return dict(mesh=Mesh(d["v"], d["f"]), canonical=d["c"], pose=d["pose"], stalk=d["stalk"], bottom=d["bottom"])
+    return dict(mesh=Mesh(d["v"], d["f"]), canonical=d["c"], pose=d["pose"], stalk=d["stalk"], bottom=d["bottom"],
+                scan=Mesh(d["hv"], d["hf"]))
 
 
 def _best_turn(vertices: np.ndarray, truth: np.ndarray, axis: np.ndarray) -> tuple[np.ndarray, float]:
@@ -195,7 +207,7 @@ def run_class(product, pose, files, n_baseline, config=None):
     for k, fn in enumerate(files[1:]):
         tgt = _load(fn)
         t0 = time.perf_counter()
-        reg = register(template, tgt["mesh"], RegistrationConfig(**(config or {})))
+        reg = register(template, tgt["scan"], RegistrationConfig(**(config or {})))
         sec = time.perf_counter() - t0
         r_true = tgt["pose"][:3, :3] @ ref["pose"][:3, :3].T
         ax = np.degrees(np.arccos(np.clip((reg.transform[:3, :3] @ ref["pose"][:3, 2]) @ tgt["pose"][:3, 2], -1, 1)))
@@ -269,6 +281,9 @@ def main(argv=None):
     ap.add_argument("--noise", type=float, default=0.0,
                     help="scanner noise of the targets, mm (standard deviation along the normals; the truth is "
                          "the noise-free surface's)")
+    ap.add_argument("--holes", type=float, default=0.0,
+                    help="share of each target's surface cut away in 1-3 holes (synth's holes; the truth is the "
+                         "closed surface's)")
     ap.add_argument("--cache", default=os.environ.get("HORTISHAPE_BENCH_CACHE", "/tmp/hortishape-bench"))
     ap.add_argument("--json", help="write all figures to this file")
     ap.add_argument(
@@ -294,7 +309,7 @@ def main(argv=None):
     print(f"family {args.family}, instances made with seeds {args.seed}..{args.seed + args.n - 1}", flush=True)
     for product in args.products:
         for pose in args.poses:
-            files = make_cases(product, pose, args.n, cache, args.family, args.seed, args.noise)
+            files = make_cases(product, pose, args.n, cache, args.family, args.seed, args.noise, args.holes)
             # a fresh process per class: its peak RSS is the registration's
             with ProcessPoolExecutor(1, mp_context=get_context("spawn")) as pool:
                 nb = args.baseline if pose in args.baseline_poses else 0

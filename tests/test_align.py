@@ -17,6 +17,7 @@ from hortishape.align import (
     rotation_angle,
 )
 from hortishape.errors import MeshError
+from hortishape.mesh import Mesh
 
 
 def _egg(n=4000, seed=0):
@@ -239,3 +240,26 @@ def test_axis_alignments_put_the_axis_on_the_axis_both_ways():
     # one of the six turns is the true rotation (up to the sampling of the turn)
     assert min(rotation_angle(t[:3, :3] @ r.T) for t in ts[:6]) < 31.0
     assert axis_alignments(a, b, n_turns=6, both_ends=False).shape == (6, 4, 4)
+
+
+def test_a_hole_at_an_end_leaves_that_end_untold():
+    # the docstring's ellipsoid with a dimple at one end of its axis, then with the dimple cut away (as a
+    # scanner misses a stalk cavity it cannot see into) and the hole closed by a patch
+    from hortishape.registration import RegistrationConfig
+    from hortishape.registration.orientation import _ends_told
+    from hortishape.surface import fill_holes
+
+    s = trimesh.creation.icosphere(5, radius=40.0)
+    v = s.vertices * [1.0, 1.0, 0.8]
+    v[:, 2] -= 12.0 * np.exp(-((v[:, 0] ** 2 + v[:, 1] ** 2) / 120.0)) * (v[:, 2] > 0)
+    whole = fruit_axis(v, s.faces)
+    assert whole.contrast == 1.0 and whole.hidden.tolist() == [0.0, 0.0]
+    assert _ends_told(whole, RegistrationConfig())
+    centres = v[s.faces].mean(axis=1)
+    cut = trimesh.Trimesh(v, s.faces[~((centres[:, 2] > 0) & (np.hypot(centres[:, 0], centres[:, 1]) < 9.0))])
+    cut.remove_unreferenced_vertices()
+    closed = fill_holes(Mesh(cut.vertices, cut.faces))
+    seen = fruit_axis(closed.mesh.vertices, closed.mesh.faces, observed=~closed.filled)
+    assert abs(seen.direction[2]) > 0.99  # the axis is still found
+    assert seen.hidden.max() > RegistrationConfig().end_cavity  # about 3 % of the surface under the patch
+    assert not _ends_told(seen, RegistrationConfig())  # so both ends are searched

@@ -1,6 +1,7 @@
 """Building a model from a folder: two passes, Procrustes, PCA, files, bad scans, resume."""
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import h5py
@@ -113,6 +114,24 @@ def test_wrong_units_and_reference_choice(scans, tmp_path):
     median = np.median(sizes)
     chosen = choose_reference(checks)
     assert abs(sizes[[str(p) for p in paths].index(chosen)] - median) == min(abs(s - median) for s in sizes)
+
+
+def test_a_scan_with_holes_is_checked_closed_and_not_chosen_as_reference(scans, tmp_path):
+    paths = [scans / f"apple_00{i}.ply" for i in range(3)]
+    import trimesh
+
+    m = read_mesh(paths[0])
+    centres = m.vertices[m.faces].mean(axis=1)
+    side = centres[:, 0] > np.quantile(centres[:, 0], 0.97)  # a cap of about 3 % of the faces, on a side
+    cut = trimesh.Trimesh(m.vertices, m.faces[~side], process=False)
+    cut.remove_unreferenced_vertices()
+    holed = write_mesh(tmp_path / "holed.ply", cut.vertices, cut.faces)
+    checks = check_scans([holed, *paths])
+    assert all(c.ok for c in checks) and checks[0].holes == 1 and 0.0 < checks[0].hole_share < 0.1
+    assert checks[0].size == pytest.approx(checks[1].size, rel=0.01)  # the size of the scan closed
+    # the holed scan's size is made the median's: it is still not the reference
+    checks[0] = replace(checks[0], size=float(np.median([c.size for c in checks])))
+    assert choose_reference(checks) != str(holed)
 
 
 def test_fit_scan_describes_a_model_instance(built, scans):

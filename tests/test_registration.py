@@ -184,9 +184,11 @@ def test_move_tolerance_ends_the_iterations_once_the_surface_stops(template, den
 
 
 def test_bad_inputs(template, dense):
-    open_mesh = Mesh(dense.vertices, dense.faces[50:])
-    with pytest.raises(MeshError, match="not closed"):
-        register(template, open_mesh)
+    # a scan missing half of itself is no scan to register (a small hole is: see test_a_scan_with_holes...)
+    half = trimesh.Trimesh(dense.vertices, dense.faces[dense.vertices[dense.faces].mean(axis=1)[:, 2] < 0.0])
+    half.remove_unreferenced_vertices()
+    with pytest.raises(MeshError, match=r"hole\(s\) covering \d+ % of it.*fit --partial"):
+        register(template, Mesh(half.vertices, half.faces))
     two = Mesh(
         np.vstack([dense.vertices, dense.vertices + [200.0, 0, 0]]),
         np.vstack([dense.faces, dense.faces + dense.n_vertices]),
@@ -781,3 +783,31 @@ def test_a_dent_of_a_few_square_millimetres_does_not_decide_the_ends():
     assert ends == "cavity"
     both_ways, ends = _axis_candidates(large, small, cfg)
     assert ends == "searched" and len(both_ways) == 2 * len(one_way)
+
+
+def test_a_scan_with_holes_registers_as_the_closed_scan_does():
+    # the same synthetic apple closed and with 10 % of its surface cut away in holes (cut last, so the
+    # rest of the scan is the same): the patches that close the holes guide the orientation search and
+    # are no data for the elastic steps. Measured on seeds 13-15: 0.44-0.74 mm apart on average (most
+    # of it over the holes), stalk tips alike within 0.05 mm.
+    from hortishape import synth
+    from hortishape.registration import prepare_target
+    from hortishape.registration.correspondences import correspond
+
+    ref = synth.make_instance("apple", random_state=11, pose="upright", n_vertices=20000)
+    closed = synth.make_instance("apple", random_state=13, pose="random", n_vertices=20000)
+    holed = synth.make_instance("apple", random_state=13, pose="random", n_vertices=20000, holes=0.1)
+    template = prepare_reference(ref.mesh, 6000)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        a, b = register(template, closed.mesh), register(template, holed.mesh)
+    assert a.target_holes == 0 and b.target_holes == 2 and b.target_hole_share == pytest.approx(0.1, abs=0.01)
+    assert np.linalg.norm(a.vertices - b.vertices, axis=1).mean() < 1.2
+    cp = closest_points(template.mesh, ref.landmarks["stalk_tip"][None])
+    tip = barycentric_interpolate(b.vertices, b.faces, cp.face_index, cp.barycentric)[0]
+    assert np.linalg.norm(tip - closed.landmarks["stalk_tip"]) < 2.0  # 0.83 mm, closed 0.87
+    # no correspondence lands on a patch (a hit on a rim's edge may read as either face)
+    target = prepare_target(holed.mesh)
+    found = correspond(b.mesh, target)
+    on = closest_points(target.mesh, found.points[found.found]).face_index
+    assert target.filled is not None and target.filled[on].mean() < 0.002

@@ -24,7 +24,7 @@ Transforms are ``(4, 4)`` homogeneous matrices acting on column vectors:
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.sparse import coo_matrix
@@ -471,6 +471,10 @@ class FruitAxis:
         A second hypothesis, the axis through the largest cavity, when that
         lies more than ``AXIS_AGREEMENT`` degrees from ``direction`` and the
         fruit is not elongated (``ELONGATED_VARIANCE``).
+    hidden : (2,) float64 ndarray
+        Fraction of the surface near each end (as ``cavities``) that closes a
+        hole of the scan (not ``observed``): a cavity there would not be
+        seen, so the ends' cavities say less than they seem.
     """
 
     centre: np.ndarray
@@ -480,6 +484,7 @@ class FruitAxis:
     cavities: np.ndarray
     contrast: float
     alternative: FruitAxis | None = None
+    hidden: np.ndarray = field(default_factory=lambda: np.zeros(2))
 
 
 def _fibonacci_hemisphere(n: int) -> np.ndarray:
@@ -553,6 +558,7 @@ def fruit_axis(
     n_samples: int = 1000,
     n_end_samples: int = 4000,
     random_state: RandomState = 0,
+    observed=None,
 ) -> FruitAxis:
     """The axis a fruit is most nearly a body of revolution about, and its cavity end.
 
@@ -582,6 +588,11 @@ def fruit_axis(
         Surface samples that measure the cavities at the ends.
     random_state : int, Generator or None, default: 0
         Seed of the surface samples.
+    observed : (m,) array_like of bool, optional
+        Which faces the scanner saw; the others close its holes
+        (:func:`hortishape.surface.fill_holes`). Only seen faces are sampled,
+        so that a guessed patch neither breaks the symmetry nor makes a
+        cavity; the patches still count as surface to land on.
 
     Returns
     -------
@@ -608,7 +619,14 @@ def fruit_axis(
     centre = w @ v / w.sum()
     x = v - centre
     prob = w / w.sum()
-    p = x[rng.choice(len(v), n_samples, p=prob)]
+    seen, known = prob, np.ones(len(v), dtype=bool)
+    if observed is not None:
+        observed = np.asarray(observed, dtype=bool)
+        seen = vertex_areas(v, f[observed])
+        seen = seen / seen.sum() if seen.sum() > 0 else prob
+        known = np.zeros(len(v), dtype=bool)
+        known[f[observed].ravel()] = True
+    p = x[rng.choice(len(v), n_samples, p=seen)]
     scale = float(np.sqrt((p**2).sum(axis=1).mean()))
     # the surface as up to TREE_POINTS area-weighted samples: the distances
     # compare axes, a finer surface changes them all alike
@@ -664,9 +682,11 @@ def fruit_axis(
     # cavities: surface samples deeper than CAVITY_DEPTH below the convex
     # hull (of a few thousand vertices: its facets lie within a hundredth of
     # a millimetre of the full hull's on a fruit, at a fraction of the cost)
-    q = x[rng.choice(len(v), n_end_samples, p=prob)]
+    picked = rng.choice(len(v), n_end_samples, p=prob)
+    q, guessed = x[picked], ~known[picked]
     hull_points = x if len(x) <= HULL_VERTICES else x[rng.choice(len(x), HULL_VERTICES, replace=False)]
-    deep = _hull_depth(hull_points, q) / scale > CAVITY_DEPTH
+    # a patch over a hole is no evidence of a cavity, nor of its absence
+    deep = (_hull_depth(hull_points, q) / scale > CAVITY_DEPTH) & ~guessed
 
     def oriented(axis: np.ndarray, symmetry: float) -> FruitAxis:
         s = q @ axis
@@ -681,11 +701,12 @@ def fruit_axis(
             off = np.linalg.norm(q - np.outer(s, axis), axis=1)
             near = [n & (off < END_RADIUS * np.median(off[n])) if n.any() else n for n in near]
         ends = np.array([np.mean(deep & near[0]), np.mean(deep & near[1])])
+        hidden = np.array([np.mean(guessed & near[0]), np.mean(guessed & near[1])])
         if ends[1] > ends[0]:
-            axis, ends = -axis, ends[::-1]
+            axis, ends, hidden = -axis, ends[::-1], hidden[::-1]
         total = ends.sum()
         contrast = float((ends[0] - ends[1]) / total) if total > 0 else 0.0
-        return FruitAxis(centre, axis, _across(x, w, axis), symmetry, ends, contrast)
+        return FruitAxis(centre, axis, _across(x, w, axis), symmetry, ends, contrast, hidden=hidden)
 
     found = oriented(axis, best)
     # A fruit flattened along its axis (a squat pepper) can be more nearly a

@@ -187,6 +187,9 @@ def _add_synth(sub) -> None:
                         "depth noise) and <name>.views.json (for 'fit --partial')")
     p.add_argument("--family", default="standard", metavar="F",
                    help="shape family of the product (listed above)")
+    p.add_argument("--holes", type=_non_negative_float, default=0.0, metavar="SHARE",
+                   help="cut this share of each scan's surface away in 1-3 round holes, as a structured-light "
+                        "scanner leaves where it did not see (e.g. 0.05; 0: closed scans)")
     p.add_argument("--jobs", type=_positive_int, default=None, metavar="J",
                    help="parallel processes (default: all cores)")
     p.set_defaults(run=_run_synth)
@@ -199,6 +202,7 @@ def _run_synth(args) -> int:
     rows = write_population(
         args.product, args.n, args.out, random_state=args.seed, pose=args.pose, noise=args.noise,
         n_vertices=args.vertices, volumes=args.volumes, n_jobs=args.jobs, family=args.family, views=args.view or 0,
+        holes=args.holes,
         progress=_progress(args.n, f"synth {args.product}"),
     )
     print(f"{'instance':<14}{'vertices':>10}{'width':>9}{'depth':>9}{'height':>9}   (mm)")
@@ -378,7 +382,10 @@ def _add_register(sub) -> None:
             "  DIR/<target stem>.json  the log: per-iteration stiffness, mean distance, kept\n"
             "                          correspondences, seconds; the rigid transform\n\n"
             "Targets run in parallel; a target that cannot be used is reported and skipped "
-            "(--strict stops instead); run again and finished targets are not redone."
+            "(--strict stops instead); run again and finished targets are not redone.\n\n"
+            "Scans with holes (a structured-light scanner's, where it did not see) are registered too: "
+            "each hole is closed by a smooth patch that the orientation search takes for surface and the "
+            "elastic steps ignore (holes over a quarter of the surface are refused: see 'fit --partial')."
         ),
         epilog=EPILOG,
         formatter_class=_Formatter,
@@ -463,8 +470,8 @@ def _add_build(sub) -> None:
         help="build a shape model from a folder of scans",
         description=(
             "Build a statistical shape model from every mesh in INPUT_DIR (paper section 2.2.3):\n"
-            "  1. check every scan (closed, one component, millimetres) and pick the reference\n"
-            "     (--reference, or the scan nearest the population's median size);\n"
+            "  1. check every scan (one component, millimetres; holes closed by patches) and pick the\n"
+            "     reference (--reference, or the closed scan nearest the population's median size);\n"
             "  2. resample it to --points vertices and register it to every scan;\n"
             "  3. register the mean of those surfaces to every scan again (the paper's second pass,\n"
             "     against bias towards the first reference);\n"

@@ -252,6 +252,8 @@ def registration_log(reg: Registration, *, source: Path, fingerprint: str, diges
             "orientation_index": int(reg.orientation_index),
             "orientation_confidence": float(reg.orientation_confidence),
             "orientation_ends": reg.orientation_ends,
+            "target_holes": int(reg.target_holes),
+            "target_hole_share": float(reg.target_hole_share),
         },
         "plan": None if reg.plan is None else asdict(reg.plan),
         "orientation_scores": np.asarray(reg.orientation_scores).tolist(),
@@ -520,12 +522,15 @@ class ScanCheck:
     n_vertices: int = 0
     size: float = float("nan")  # cube root of the enclosed volume, mm
     extent: float = float("nan")  # largest extent of the bounding box, mm
+    holes: int = 0  # holes closed by patches before registration
+    hole_share: float = 0.0  # the patches' share of the closed surface
 
 
 def check_scans(paths: Sequence, *, max_size_ratio: float = 5.0, scale: float = 1.0) -> list[ScanCheck]:
     """Read every scan once and check it is usable for a population model.
 
-    A scan must be one closed surface of a fruit's size in mm after ``scale``
+    A scan must be one surface (holes up to ``MAX_HOLE_SHARE`` of it are
+    closed by patches, :func:`hortishape.registration.close_scan`) of a fruit's size in mm after ``scale``
     (:func:`hortishape.units.check_size`: a population wholly in metres is
     refused too), and its size (cube root of the enclosed volume) within
     ``max_size_ratio`` of the population's median: a scan in metres among
@@ -547,7 +552,8 @@ def check_scans(paths: Sequence, *, max_size_ratio: float = 5.0, scale: float = 
     >>> [c.ok for c in checks], pathlib.Path(choose_reference(checks)).name
     ([True, True, False], 'a.ply')
     """
-    from .surface import check_closed_surface, signed_volume
+    from .registration import close_scan
+    from .surface import signed_volume
 
     checks = []
     for p in paths:
@@ -555,10 +561,12 @@ def check_scans(paths: Sequence, *, max_size_ratio: float = 5.0, scale: float = 
         try:
             scan = read_scan(p, scale=scale)
             mesh = scan.mesh
-            check_closed_surface(mesh, name=str(p), allow_degenerate=True)
-            size = abs(signed_volume(mesh.vertices, mesh.faces)) ** (1.0 / 3.0)
+            _, closed = close_scan(mesh, name=str(p))
+            whole = mesh if closed is None else closed.mesh
+            size = abs(signed_volume(whole.vertices, whole.faces)) ** (1.0 / 3.0)
             checks.append(ScanCheck(str(p), True, n_vertices=mesh.n_vertices, size=size,
-                                    extent=scan.units.extent_mm))
+                                    extent=scan.units.extent_mm, holes=0 if closed is None else closed.n_holes,
+                                    hole_share=0.0 if closed is None else closed.hole_share))
         except HortishapeError as exc:
             checks.append(ScanCheck(str(p), False, error=str(exc)))
     sizes = [c.size for c in checks if c.ok]
@@ -577,16 +585,18 @@ def check_scans(paths: Sequence, *, max_size_ratio: float = 5.0, scale: float = 
 
 
 def choose_reference(checks: Sequence[ScanCheck]) -> str:
-    """The default reference: the usable scan whose size is nearest the median.
+    """The default reference: the usable scan whose size is nearest the median, a closed one if any.
 
     The paper picks a random instance; a typical-sized one deforms least on
-    average, which keeps correspondences more even across the population.
+    average, which keeps correspondences more even across the population. A
+    scan with holes would bring its patches, guessed surface, into every
+    registration; among scans that all have holes, the one with the least.
     """
     ok = [c for c in checks if c.ok]
     if not ok:
         raise HortishapeError("no usable scan to choose a reference from")
     median = float(np.median([c.size for c in ok]))
-    return min(ok, key=lambda c: (abs(c.size - median), c.path)).path
+    return min(ok, key=lambda c: (c.hole_share, abs(c.size - median), c.path)).path
 
 
 @dataclass(frozen=True)

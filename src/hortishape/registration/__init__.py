@@ -116,7 +116,7 @@ from .correspondences import TargetSurface, find_correspondences, prepare_target
 from .core import plan_registration, register
 from .batch import register_many
 from .result import IterationRecord, Registration, RegistrationPlan
-from .template import Template, prepare_reference
+from .template import Template, close_scan, prepare_reference
 
 __all__ = [
     "IterationRecord",
@@ -125,6 +125,7 @@ __all__ = [
     "RegistrationPlan",
     "TargetSurface",
     "Template",
+    "close_scan",
     "find_correspondences",
     "heuristics",
     "plan_registration",

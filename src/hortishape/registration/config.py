@@ -83,6 +83,15 @@ LOBED = 0.015
 #: the result of one badly registered zucchini, where short rays do cross.
 CROSSING_MIN_EDGES = 0.5
 
+#: A scan with holes (a structured-light scan where the scanner did not see)
+#: is registered onto its holes closed by smooth patches
+#: (:func:`hortishape.surface.fill_holes`); patches larger than this share
+#: of the closed surface are refused: too much of it would be guessed.
+MAX_HOLE_SHARE = 0.25
+#: Whether the orientation search takes a ray's hit on a patch for a
+#: correspondence (the elastic iterations never do: the patch is no data).
+SEARCH_PATCH_DATA = True
+
 #: The orientation search's stiffness is that of the schedule's start on a
 #: reference of this many vertices (the paper's apple), whatever the
 #: reference's own count. Eq. 8's beta is a smoothing length in edges, so

@@ -14,6 +14,7 @@ from ..errors import ConvergenceWarning, MeshError
 from ..mesh import Mesh
 from .config import (
     LANDMARK_SPREAD,
+    SEARCH_PATCH_DATA,
     UNCOVERED_AT_STALK,
     UNCOVERED_EDGES,
     UNCOVERED_GAIN,
@@ -144,13 +145,15 @@ def register(
     if reference_up is None and target_up is None and cfg.up is not None:
         reference_up = target_up = cfg.up
     plan = plan_registration(template, cfg, given=initial_transform is not None)
+    # the search judges whole surfaces: a hole's patch counts as the scan's
+    searched = tgt if tgt.filled is None else replace(tgt, patch_data=SEARCH_PATCH_DATA)
     if initial_transform is not None:
         orient = _Orientation(np.asarray(initial_transform, dtype=np.float64).reshape(4, 4), np.zeros(0), -1, "",
                              float("nan"))
     elif cfg.orientation == "none":
         orient = _Orientation(np.eye(4), np.zeros(0), -1, "", float("nan"))
     else:
-        orient = _choose_orientation(template, tgt, cfg, plan, _up_hint(reference_up, target_up))
+        orient = _choose_orientation(template, searched, cfg, plan, _up_hint(reference_up, target_up))
 
     # --- elastic registration from there ------------------------------------
     anchors = {} if pairs is None else {
@@ -199,6 +202,8 @@ def register(
             orientation_confidence=orient.confidence,
             orientation_ends=orient.ends,
             plan=plan,
+            target_holes=tgt.n_holes,
+            target_hole_share=tgt.hole_share,
         )
 
     reg = run(orient.transform, orient.chosen)
@@ -209,7 +214,7 @@ def register(
             # stalk, when the reference came out upside down): try the best
             # candidate end over end (or turned well away) and keep it if it
             # covers clearly more (see ``coverage_check``)
-            alt = run(_refined_start(template, tgt, orient.alternative, cfg, plan), orient.alternative_index)
+            alt = run(_refined_start(template, searched, orient.alternative, cfg, plan), orient.alternative_index)
             if _uncovered_fraction(alt, tgt, UNCOVERED_EDGES * fine.edge_length) <= UNCOVERED_GAIN * uncovered:
                 reg = alt
             reg = replace(reg, seconds=time.perf_counter() - t_start)

@@ -26,10 +26,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..mesh import Mesh
-from ..surface import check_closed_surface, vertex_normals
+from ..surface import vertex_normals
 from .config import CROSSING_MIN_EDGES, RegistrationConfig
 from .result import Registration
-from .template import _Level
+from .template import _Level, close_scan
 
 __all__ = [
     "CROSSING",
@@ -194,16 +194,34 @@ class TargetSurface:
     Attributes
     ----------
     mesh : Mesh
-        The target surface.
+        The target surface, its holes closed (:func:`hortishape.surface.fill_holes`).
     normals : (n, 3) float64 ndarray
         Outward unit vertex normals (orientation fixed by the enclosed volume).
     scene : RayScene
         Ray-query structure (built once).
+    filled : (m,) bool ndarray or None
+        Which faces of ``mesh`` close a hole of the scan (None: it had none).
+        A ray that hits one finds no correspondence: the patch is not data.
+    n_holes : int
+        Holes the scan had.
+    hole_share : float
+        The patches' share of the closed surface's area.
+    patch_data : bool, default: False
+        Whether a ray that hits a patch finds its correspondence there, as
+        on the scan: the orientation search judges whole surfaces.
+    scan_vertices : int or None
+        With holes: the first ``scan_vertices`` vertices of ``mesh`` are the
+        scan's, the rest the patches'.
     """
 
     mesh: Mesh
     normals: np.ndarray
     scene: RayScene
+    filled: np.ndarray | None = None
+    n_holes: int = 0
+    hole_share: float = 0.0
+    patch_data: bool = False
+    scan_vertices: int | None = None
 
 
 def prepare_target(mesh: Mesh, *, name: str = "target") -> TargetSurface:
@@ -212,9 +230,12 @@ def prepare_target(mesh: Mesh, *, name: str = "target") -> TargetSurface:
     Parameters
     ----------
     mesh : Mesh
-        Closed single-component surface. Degenerate (zero-area) triangles are
+        Single-component surface. Degenerate (zero-area) triangles are
         tolerated (marching cubes makes a few; rays never hit them); inward
-        winding is tolerated (normals are flipped to point outward).
+        winding is tolerated (normals are flipped to point outward); holes
+        are closed by smooth patches (:func:`close_scan`), which the
+        orientation search takes for surface and the elastic iterations
+        ignore.
     name : str, default: "target"
         Name in error messages.
 
@@ -225,7 +246,8 @@ def prepare_target(mesh: Mesh, *, name: str = "target") -> TargetSurface:
     Raises
     ------
     MeshError
-        If the surface is open, non-manifold or has several components.
+        If the surface is non-manifold, has several components or holes
+        over ``MAX_HOLE_SHARE`` of it.
 
     Examples
     --------
@@ -234,10 +256,16 @@ def prepare_target(mesh: Mesh, *, name: str = "target") -> TargetSurface:
     >>> prepare_target(Mesh(s.vertices, s.faces)).normals.shape
     (162, 3)
     """
-    sign = check_closed_surface(mesh, name=name, allow_degenerate=True)
-    normals = sign * vertex_normals(mesh.vertices, mesh.faces)
+    sign, closed = close_scan(mesh, name=name)
+    if closed is None:
+        normals = sign * vertex_normals(mesh.vertices, mesh.faces)
+        normals.flags.writeable = False
+        return TargetSurface(mesh, normals, RayScene(mesh.vertices, mesh.faces))
+    m = closed.mesh
+    normals = sign * vertex_normals(m.vertices, m.faces)
     normals.flags.writeable = False
-    return TargetSurface(mesh, normals, RayScene(mesh.vertices, mesh.faces))
+    return TargetSurface(m, normals, RayScene(m.vertices, m.faces), closed.filled, closed.n_holes,
+                         closed.hole_share, scan_vertices=closed.n_input_vertices)
 
 
 @dataclass(frozen=True)
@@ -394,6 +422,11 @@ def find_correspondences(
         """Rays ``rows`` against the target, filters (a) and (b)."""
         face, tr, bary = tgt.scene.first_hit(origins[rows], dirs[rows], max_distance=limit)
         hit = face >= 0
+        if tgt.filled is not None and not tgt.patch_data:
+            # a hole's patch is no data: the ray found nothing (it stops there, as at the scan's hole)
+            patch = hit & tgt.filled[np.maximum(face, 0)]
+            face = np.where(patch, -1, face)
+            hit &= ~patch
         # a hit "behind" the origin by round-off counts as distance 0
         t[rows] = np.where(hit, np.maximum(tr, 0.0), np.inf)
         tnr = np.zeros((len(rows), 3))
@@ -515,7 +548,7 @@ def _uncovered(reg: Registration, target: TargetSurface, distance: float,
     """:func:`_uncovered_fraction` and the uncovered vertices themselves."""
     from scipy.spatial import cKDTree
 
-    v = target.mesh.vertices
+    v = target.mesh.vertices[:target.scan_vertices]  # a patch is no scan to cover
     idx = np.linspace(0, len(v) - 1, min(samples, len(v))).astype(np.int64)
     d, _ = cKDTree(reg.vertices).query(v[idx], distance_upper_bound=distance)
     far = np.isinf(d)

@@ -30,7 +30,8 @@ from .warp import _warp_kind
 
 def _target_axis(target: TargetSurface) -> FruitAxis:
     """The target's :func:`hortishape.align.fruit_axis`."""
-    return fruit_axis(target.mesh.vertices, target.mesh.faces)
+    observed = None if target.filled is None else ~target.filled
+    return fruit_axis(target.mesh.vertices, target.mesh.faces, observed=observed)
 
 
 def _axis_candidates(ref: FruitAxis, tgt: FruitAxis, cfg: RegistrationConfig) -> tuple[np.ndarray, str]:
@@ -52,8 +53,13 @@ def _axis_candidates(ref: FruitAxis, tgt: FruitAxis, cfg: RegistrationConfig) ->
 
 
 def _ends_told(axis: FruitAxis, cfg: RegistrationConfig) -> bool:
-    """Whether a scan's cavities tell its ends apart: ``end_contrast`` between them, ``end_cavity`` at one."""
-    return axis.contrast >= cfg.end_contrast and axis.cavities[0] >= cfg.end_cavity
+    """Whether a scan's cavities tell its ends apart: ``end_contrast`` between them, ``end_cavity`` at one.
+
+    Not where a patch over a hole near an end holds ``end_cavity`` of the
+    surface: as much cavity could hide under it.
+    """
+    return (axis.contrast >= cfg.end_contrast and axis.cavities[0] >= cfg.end_cavity
+            and float(np.max(axis.hidden)) < cfg.end_cavity)
 
 
 def _search_orientation(

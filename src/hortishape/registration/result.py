@@ -122,6 +122,11 @@ class Registration:
         Total wall time.
     plan : RegistrationPlan or None
         The choices made for this reference (see :class:`RegistrationPlan`).
+    target_holes : int
+        Holes the target had, closed by patches before it was registered
+        (:func:`hortishape.registration.close_scan`).
+    target_hole_share : float
+        The patches' share of the closed target's surface.
     """
 
     vertices: np.ndarray
@@ -137,6 +142,8 @@ class Registration:
     orientation_confidence: float = float("nan")
     orientation_ends: str = ""
     plan: RegistrationPlan | None = None
+    target_holes: int = 0
+    target_hole_share: float = 0.0
 
     @property
     def mesh(self) -> Mesh:

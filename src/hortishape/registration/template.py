@@ -10,7 +10,8 @@ import scipy.sparse as sp
 from ..align import FruitAxis, fruit_axis
 from ..errors import MeshError
 from ..mesh import Mesh
-from ..surface import check_closed_surface, closest_points, remesh
+from ..surface import FilledSurface, check_closed_surface, checked_surface, closest_points, fill_holes, remesh
+from .config import MAX_HOLE_SHARE
 
 
 def _face_pairs(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -183,7 +184,9 @@ def prepare_reference(
     Raises
     ------
     MeshError
-        If the surface is open, has several components or degenerate triangles.
+        If the surface has several components, degenerate triangles or holes
+        over ``MAX_HOLE_SHARE`` of it (smaller holes are closed by smooth
+        patches first, :func:`hortishape.surface.fill_holes`).
 
     Examples
     --------
@@ -194,6 +197,9 @@ def prepare_reference(
     (2562, 500, 200)
     """
     src_fi = src_bc = None
+    _, closed = close_scan(mesh, name="reference")
+    if closed is not None:  # the patches become reference surface; the input's faces come first
+        mesh = closed.mesh
     if n_vertices is not None:
         r = remesh(mesh, n_vertices)
         fine, src_fi, src_bc = r.mesh, r.face_index, r.barycentric
@@ -208,3 +214,50 @@ def prepare_reference(
     search = remesh(coarse, n_search).mesh if n_search < coarse.n_vertices else coarse
     cp = closest_points(coarse, fine.vertices)
     return Template(fine, coarse, cp.face_index, cp.barycentric, search, src_fi, src_bc)
+
+
+def close_scan(mesh: Mesh, *, name: str = "scan") -> tuple[float, FilledSurface | None]:
+    """Check a scan as a registration takes it, and close its holes if it has any.
+
+    Parameters
+    ----------
+    mesh : Mesh
+        One consistently oriented manifold surface; holes are allowed (a
+        structured-light scan has them where the scanner did not see).
+    name : str, default: "scan"
+        Name in error messages.
+
+    Returns
+    -------
+    sign : float
+        +1.0 if the faces wind outward, -1.0 if inward.
+    closed : FilledSurface or None
+        The surface with its holes closed (:func:`hortishape.surface.fill_holes`),
+        None if it had none.
+
+    Raises
+    ------
+    MeshError
+        If the surface is non-manifold or has several components, or its holes
+        hold more than ``MAX_HOLE_SHARE`` of it once closed.
+
+    Examples
+    --------
+    >>> import trimesh
+    >>> s = trimesh.creation.icosphere(3, radius=40.0)
+    >>> cut = trimesh.Trimesh(s.vertices, s.faces[s.triangles_center[:, 2] < 38.0])
+    >>> cut.remove_unreferenced_vertices()
+    >>> sign, closed = close_scan(Mesh(cut.vertices, cut.faces))
+    >>> sign, closed.n_holes, round(closed.hole_share, 3)
+    (1.0, 1, 0.022)
+    """
+    sign, loops = checked_surface(mesh, name=name, allow_degenerate=True, allow_holes=True)
+    if not loops:
+        return sign, None
+    closed = fill_holes(mesh, name=name, loops=loops)
+    if closed.hole_share > MAX_HOLE_SHARE:
+        raise MeshError(
+            f"{name}: the surface has {closed.n_holes} hole(s) covering {100 * closed.hole_share:.0f} % of it (at "
+            f"most {100 * MAX_HOLE_SHARE:.0f} % can be bridged); fit a partial scan with `hortishape fit --partial`"
+        )
+    return sign, closed
