@@ -31,7 +31,16 @@ from .errors import ConvergenceWarning, HortishapeError
 from .io import is_mesh_file, mesh_formats, read_mesh, write_mesh
 from .layout import ModelDir
 from .mesh import Mesh
-from .registration import Registration, RegistrationConfig, Template, heuristics, prepare_reference, register
+from .registration import (
+    Registration,
+    RegistrationConfig,
+    Template,
+    close_scan,
+    heuristics,
+    prepare_reference,
+    prepare_target,
+    register,
+)
 from .units import PLAUSIBLE_EXTENT_MM, SizeCheck, read_scan
 
 __all__ = [
@@ -78,7 +87,8 @@ class InstanceResult:
         correspondences, mm.
     geometric_error : float
         Mean distance of the registered vertices to the scan's surface, mm
-        (the paper's Table 2 measure).
+        (the paper's Table 2 measure); with holes, over the vertices nearest
+        the scan's own surface, not a hole's patch.
     kept_fraction : float
         Fraction of reference vertices with a kept correspondence at the end.
     orientation_confidence : float
@@ -299,7 +309,7 @@ def _register_job(job) -> tuple[InstanceResult, tuple | None]:
                 local = Path(tmp) / source.name
                 local.write_bytes(data)
                 scan = read_scan(local, scale=_WORKER.get("scale", 1.0))
-        target = scan.mesh
+        target = prepare_target(scan.mesh)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", ConvergenceWarning)  # reported as converged=False
             reg = register(template, target, config, initial_transform=initial_transform,
@@ -307,7 +317,11 @@ def _register_job(job) -> tuple[InstanceResult, tuple | None]:
                            target_landmarks=landmarks or None)
         from .surface import closest_points
 
-        geometric = float(closest_points(target, reg.vertices).distances.mean())
+        near = closest_points(target.mesh, reg.vertices)
+        # over a hole the registered surface spans what the scan does not have: not measured there
+        on_scan = np.ones(len(near.distances), dtype=bool) if target.filled is None \
+            else ~target.filled[near.face_index]
+        geometric = float(near.distances[on_scan].mean()) if on_scan.any() else float("nan")
         log = registration_log(reg, source=source, fingerprint=fingerprint, digest=digest,
                                geometric_error=geometric, units=scan.units)
         if landmarks:
@@ -552,7 +566,6 @@ def check_scans(paths: Sequence, *, max_size_ratio: float = 5.0, scale: float = 
     >>> [c.ok for c in checks], pathlib.Path(choose_reference(checks)).name
     ([True, True, False], 'a.ply')
     """
-    from .registration import close_scan
     from .surface import signed_volume
 
     checks = []
