@@ -287,3 +287,14 @@ def test_fingerprint_changes_with_a_heuristic_constant(template, monkeypatch):
     assert turned != base
     monkeypatch.setattr(align, "END_CONE", align.END_CONE + 1.0)
     assert template_fingerprint(template, CONFIG) not in (base, turned)
+
+
+def test_a_scan_with_holes_is_registered_and_its_holes_reported(tmp_path, capsys):
+    from hortishape.cli import main
+
+    synth.write_population("apple", 2, tmp_path, random_state=8, n_vertices=10000, holes=0.05, n_jobs=1)
+    assert main(["register", str(tmp_path / "apple_000.ply"), str(tmp_path / "apple_001.ply"), "--out",
+                 str(tmp_path / "reg"), "--points", "2000"]) == 0
+    log = json.loads((tmp_path / "reg" / "apple_001.json").read_text())
+    assert log["summary"]["target_holes"] >= 1 and 0.04 < log["summary"]["target_hole_share"] < 0.06
+    assert "closed (5% of the surface)" in capsys.readouterr().out

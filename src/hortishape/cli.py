@@ -50,7 +50,7 @@ def _describe(item) -> str:
                 f"{item.iterations} iterations, d_t {item.mean_distance:.3f} mm, geometric error "
                 f"{item.geometric_error:.4f} mm" + ("" if confidence != confidence else
                                                     f", orientation confidence {confidence:.2f}")
-                + ("" if item.converged else ", not converged"))
+                + ("" if item.converged else ", not converged") + _holes_note(item, ", "))
     if hasattr(item, "volume_mm3"):  # an extraction
         n_warn = len(getattr(item, "warnings", ()))
         return (f" {name}: {'resumed' if item.resumed else 'extracted'} in {item.seconds:.1f} s, "
@@ -407,13 +407,22 @@ def _add_register(sub) -> None:
     p.set_defaults(run=_run_register)
 
 
+def _holes_note(item, sep: str) -> str:
+    """``"<sep>2 holes closed (8 % of the surface)"`` for a registered scan that had holes, else ``""``."""
+    holes = getattr(item, "holes", 0)
+    if not holes:
+        return ""
+    return f"{sep}{holes} hole{'s' if holes > 1 else ''} closed ({item.hole_share:.0%} of the surface)"
+
+
 def _print_results(results) -> int:
     """Print a table of batch results; returns the number that failed."""
     print(f"{'scan':<24}{'seconds':>9}{'iter':>6}{'d_t mm':>9}{'geom mm':>9}{'kept':>7}{'conf':>6}  note")
     failed = 0
     for r in results:
         if r.ok:
-            note = ("resumed" if r.resumed else "") + ("" if r.converged else " not converged")
+            note = ", ".join(x for x in ("resumed" if r.resumed else "", "" if r.converged else "not converged",
+                                         _holes_note(r, "")) if x)
             conf = "" if r.orientation_confidence != r.orientation_confidence else f"{r.orientation_confidence:.2f}"
             print(f"{r.name:<24}{r.seconds:>9.1f}{r.iterations:>6}{r.mean_distance:>9.3f}"
                   f"{r.geometric_error:>9.4f}{r.kept_fraction:>7.0%}{conf:>6}  {note.strip()}")

@@ -98,6 +98,10 @@ class InstanceResult:
     attempts : int
         How often its registration was started in this run: more than 1 when
         a cluster lost the worker running it and ran it again (0 when resumed).
+    holes : int
+        Holes of the scan, closed by patches before it was registered.
+    hole_share : float
+        The patches' share of the closed scan's surface.
     """
 
     name: str
@@ -113,6 +117,8 @@ class InstanceResult:
     kept_fraction: float = float("nan")
     orientation_confidence: float = float("nan")
     attempts: int = 1
+    holes: int = 0
+    hole_share: float = 0.0
 
 
 def find_meshes(folder) -> list[Path]:
@@ -227,6 +233,7 @@ def _result_from_log(log: dict, source: Path, *, resumed: bool) -> InstanceResul
         iterations=s["iterations"], converged=s["converged"], mean_distance=s["mean_distance_mm"],
         geometric_error=s["geometric_error_mm"], kept_fraction=s["kept_fraction"],
         orientation_confidence=_number(s.get("orientation_confidence")), attempts=0 if resumed else 1,
+        holes=int(s.get("target_holes", 0)), hole_share=float(s.get("target_hole_share", 0.0)),
     )
 
 
