@@ -420,6 +420,8 @@ class FilledSurface:
         Area of the patches (the input's units squared).
     n_input_vertices : int
         The first ``n_input_vertices`` vertices of ``mesh`` are the input's.
+    hole_share : float
+        The patches' share of the closed surface's area.
     """
 
     mesh: Mesh
@@ -427,12 +429,7 @@ class FilledSurface:
     n_holes: int
     hole_area: float
     n_input_vertices: int
-
-    @property
-    def hole_share(self) -> float:
-        """The patches' share of the closed surface's area."""
-        total = float(face_areas(self.mesh.vertices, self.mesh.faces).sum())
-        return self.hole_area / total if total > 0 else 0.0
+    hole_share: float
 
 
 #: Rings of the surface around a hole's rim that the patch's quadric is fitted to.
@@ -476,7 +473,7 @@ def fill_holes(mesh: Mesh, *, name: str = "mesh", loops: list[np.ndarray] | None
     n = len(v)
     loops = boundary_loops(f, n, name=name) if loops is None else loops
     if not loops:
-        return FilledSurface(mesh, np.zeros(len(f), dtype=bool), 0, 0.0, n)
+        return FilledSurface(mesh, np.zeros(len(f), dtype=bool), 0, 0.0, n, 0.0)
     new_v, new_f, spans = [], [], []
     count = n
     for loop in loops:
@@ -545,8 +542,9 @@ def fill_holes(mesh: Mesh, *, name: str = "mesh", loops: list[np.ndarray] | None
         verts[lo:hi] = centre + np.outer(px, e1) + np.outer(py, e2) + np.outer(height, normal)
     filled = np.zeros(len(faces), dtype=bool)
     filled[len(f):] = True
-    area = float(face_areas(verts, faces[filled]).sum())
-    return FilledSurface(Mesh(verts, faces), filled, len(loops), area, n)
+    areas = face_areas(verts, faces)
+    area, total = float(areas[filled].sum()), float(areas.sum())
+    return FilledSurface(Mesh(verts, faces), filled, len(loops), area, n, area / total if total > 0 else 0.0)
 
 
 # ----------------------------------------------------------------------------

@@ -979,14 +979,11 @@ def _cut_holes(verts: np.ndarray, faces: np.ndarray, share: float, rng) -> tuple
         if len(touching) == 0:
             break
         f = f[~np.isin(f, touching).any(axis=1)]
-    n_comp, labels = component_labels(f, n)
+    # the vertices the holes took count as components of their own: the largest among the used ones
+    _, labels = component_labels(f, n)
+    f = f[labels[f[:, 0]] == np.bincount(labels[np.unique(f)]).argmax()]
     used = np.zeros(n, dtype=bool)
     used[f.ravel()] = True
-    if n_comp > 1:
-        largest = np.bincount(labels[used]).argmax()
-        f = f[labels[f[:, 0]] == largest]
-        used[:] = False
-        used[f.ravel()] = True
     index = np.full(n, -1, dtype=np.int64)
     index[used] = np.arange(int(used.sum()))
     return used, index[f]

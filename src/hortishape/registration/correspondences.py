@@ -257,13 +257,11 @@ def prepare_target(mesh: Mesh, *, name: str = "target") -> TargetSurface:
     (162, 3)
     """
     sign, closed = close_scan(mesh, name=name)
-    if closed is None:
-        normals = sign * vertex_normals(mesh.vertices, mesh.faces)
-        normals.flags.writeable = False
-        return TargetSurface(mesh, normals, RayScene(mesh.vertices, mesh.faces))
-    m = closed.mesh
+    m = mesh if closed is None else closed.mesh
     normals = sign * vertex_normals(m.vertices, m.faces)
     normals.flags.writeable = False
+    if closed is None:
+        return TargetSurface(m, normals, RayScene(m.vertices, m.faces))
     return TargetSurface(m, normals, RayScene(m.vertices, m.faces), closed.filled, closed.n_holes,
                          closed.hole_share, scan_vertices=closed.n_input_vertices)
 
