@@ -28,6 +28,15 @@ Run::
     python benchmarks/real_poles.py                 # all ordered pairs of the six round scans
     python benchmarks/real_poles.py --pairs self    # each of the eight onto a turned copy of itself
     python benchmarks/real_poles.py --scans 012_strawberry 013_apple 017_orange   # pairs of these
+    python benchmarks/real_poles.py --marks         # what geometry shows at each mark (no registration)
+
+``--marks`` prints, for each marked scan, what a registration could find at its
+marks: the depth of each mark below the scan's convex hull, the deepest point
+within 50 degrees of it (seen from the centroid) and its distance from the
+mark, and how far the blossom mark lies from the stalk's antipode (the surface
+point straight through the centroid from the stalk mark). A registration that
+carries stalk onto stalk and keeps the reference's blossom opposite its stalk
+lands near the antipode.
 """
 
 from __future__ import annotations
@@ -100,6 +109,36 @@ def run(pairs, n_points: int, seed: int) -> list[dict]:
     return rows
 
 
+def marks(names) -> None:
+    """Depth below the convex hull at each mark, and the blossom mark against the stalk's antipode."""
+    import trimesh
+
+    from hortishape.mesh import Mesh
+    from hortishape.surface import closest_points
+
+    poles = json.loads((DATA / "poles.json").read_text())
+    print(f"{'scan':<16}{'pole':<9}{'depth mm':>9}{'deepest within 50 deg':>23}{'from the mark mm':>17}")
+    for name in names:
+        mesh, stalk, blossom = _load(name, poles)
+        v = mesh.vertices
+        hull = trimesh.Trimesh(v, mesh.faces, process=False).convex_hull
+        depth = closest_points(Mesh(hull.vertices, hull.faces), v).distances
+        centre = v.mean(axis=0)
+        rays = (v - centre) / np.linalg.norm(v - centre, axis=1)[:, None]
+        for pole_name, pole in (("stalk", stalk), ("blossom", blossom)):
+            d = (pole - centre) / np.linalg.norm(pole - centre)
+            near = np.flatnonzero(rays @ d > np.cos(np.radians(50.0)))
+            deepest = near[np.argmax(depth[near])]
+            at = int(np.argmin(np.linalg.norm(v - pole, axis=1)))
+            print(f"{name:<16}{pole_name:<9}{depth[at]:>9.2f}{depth[deepest]:>23.2f}"
+                  f"{np.linalg.norm(v[deepest] - pole):>17.1f}")
+        away = (centre - stalk) / np.linalg.norm(centre - stalk)
+        antipode = v[np.argmax(rays @ away)]
+        angle = np.degrees(np.arccos(np.clip(away @ (blossom - centre) / np.linalg.norm(blossom - centre), -1, 1)))
+        print(f"{'':<16}the blossom mark lies {np.linalg.norm(antipode - blossom):.1f} mm from the stalk's antipode "
+              f"({angle:.1f} degrees about the centroid)")
+
+
 def summarise(rows: list[dict]) -> None:
     ok = [r for r in rows if r["stalk_mm"] <= 12 and r["blossom_mm"] <= 12 and r["axis_deg"] <= 25]
     flipped = [r for r in rows if r["axis_deg"] > 90]
@@ -119,7 +158,12 @@ def main(argv=None) -> int:
     ap.add_argument("--points", type=int, default=30000, help="reference vertices (the paper's 30,000)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the random turns")
     ap.add_argument("--json", help="also write the rows to this file")
+    ap.add_argument("--marks", action="store_true",
+                    help="only what geometry shows at each mark: depth below the hull, the stalk's antipode")
     args = ap.parse_args(argv)
+    if args.marks:
+        marks(args.scans or ROUND + OTHER)
+        return 0
     if args.pairs == "self":
         pairs = [(a, a) for a in args.scans or ROUND + OTHER]
     else:
