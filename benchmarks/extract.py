@@ -16,12 +16,17 @@
    volume included). Its surface is compared with the analytic ellipsoid. The
    same for a 512^3 uint8 MRI-like layered ball (128 MB).
 
-3. With ``--artefacts``: each MRI-like volume again under what real MRI adds and
-   the synthetic volumes leave out (their truth unchanged): a bias field (a
+3. With ``--artefacts``: each volume again under what real scanners add and the
+   synthetic volumes leave out (their truth unchanged). MRI: a bias field (a
    +-20 % ramp across x, or across z; a surface coil's fall-off in the slice plane,
    1.3 at the centre to 0.8 in the corners), Gibbs ringing (k-space cut to 70 %
    or 50 % of its width on every axis) and stronger Rician noise (sigma 4 on top
-   of the volumes' 2). Same figures as 1.
+   of the volumes' 2). CT: cupping (beam hardening: the flesh 25 % darker at the
+   centre of the slice than at its edge), ring artefacts (+-60 about the slice's
+   centre, 6 voxels apart), noise sigma 150 (six times the volumes'), a wider
+   blur (Gaussian, 1.5 voxel) and a bed (a plate 4 voxels thick and as dense as
+   the flesh across the whole slice, touching the product from below). Same
+   figures as 1.
 
 Targets (issues 7 and 21): mean distance <= 0.15 voxel, volume within 0.2 % (CT)
 and 0.5 % (MRI), genus 0 and one watertight component; 512^3 in <= 20 s with
@@ -31,7 +36,7 @@ Run::
 
     python benchmarks/extract.py                         # 2 of each product, and the 512^3 volume
     python benchmarks/extract.py --n 1 --size 256        # quicker
-    python benchmarks/extract.py --products apple pepper zucchini --size 0 --artefacts   # MRI artefacts
+    python benchmarks/extract.py --products apple pepper zucchini --size 0 --artefacts   # scanner artefacts
 """
 
 from __future__ import annotations
@@ -119,23 +124,60 @@ def _rician(data, sigma, rng):
     return np.hypot(data + rng.normal(0.0, sigma, data.shape), rng.normal(0.0, sigma, data.shape))
 
 
-#: what real MRI adds (``--artefacts``): name -> f(float data, rng) -> float data
+def _in_plane_radius(data):
+    """Distance from the slice's centre (voxels), broadcast over the slices."""
+    u, v = (np.arange(n) - (n - 1) / 2.0 for n in data.shape[:2])
+    return np.hypot(u[:, None], v[None, :])[:, :, None]
+
+
+def _cupping(d):
+    r = _in_plane_radius(d)
+    return d * (0.75 + 0.25 * np.minimum(r / r.max(), 1.0) ** 2)
+
+
+def _bed(d):
+    """A plate as dense as the flesh across the slices just below the product, touching it."""
+    rows = np.flatnonzero((d > 500).any(axis=(0, 1)))
+    out = d.copy()
+    out[:, :, max(rows[0] - 4, 0):rows[0]] = 1000.0
+    return out
+
+
+def _gaussian(d, sigma):
+    from scipy.ndimage import gaussian_filter
+
+    return gaussian_filter(d, sigma)
+
+
+#: what real scanners add (``--artefacts``): kind -> name -> f(float data, rng) -> float data
 ARTEFACTS = {
-    "bias x": lambda d, rng: d * _ramp(d, 0),
-    "bias z": lambda d, rng: d * _ramp(d, 2),
-    "coil": lambda d, rng: d * _coil(d),
-    "Gibbs 70%": lambda d, rng: _gibbs(d, 0.7),
-    "Gibbs 50%": lambda d, rng: _gibbs(d, 0.5),
-    "noise 4": lambda d, rng: _rician(d, 4.0, rng),
+    "MRI": {
+        "bias x": lambda d, rng: d * _ramp(d, 0),
+        "bias z": lambda d, rng: d * _ramp(d, 2),
+        "coil": lambda d, rng: d * _coil(d),
+        "Gibbs 70%": lambda d, rng: _gibbs(d, 0.7),
+        "Gibbs 50%": lambda d, rng: _gibbs(d, 0.5),
+        "noise 4": lambda d, rng: _rician(d, 4.0, rng),
+    },
+    "CT": {
+        "cupping": lambda d, rng: _cupping(d),
+        "rings": lambda d, rng: d + 60.0 * np.sin(2.0 * np.pi * _in_plane_radius(d) / 6.0),
+        "noise 150": lambda d, rng: d + rng.normal(0.0, 150.0, d.shape),
+        "blur 1.5": lambda d, rng: _gaussian(d, 1.5),
+        "bed": lambda d, rng: _bed(d),
+    },
 }
+#: the intensity range of each kind's volumes (CT int16, MRI uint8)
+RANGE = {"MRI": (0, 255, np.uint8), "CT": (-1000, 3000, np.int16)}
 
 
-def _with_artefact(vol, name, seed):
-    """A copy of the uint8 MRI-like volume ``vol`` with the artefact ``name``."""
+def _with_artefact(vol, kind, name, seed):
+    """A copy of the ``kind`` volume ``vol`` with the artefact ``name``, in the volume's own type."""
     from hortishape.io import Volume
 
-    data = ARTEFACTS[name](vol.data.astype(np.float64), np.random.default_rng(seed))
-    return Volume(np.clip(np.rint(data), 0, 255).astype(np.uint8), spacing=vol.spacing, origin=vol.origin,
+    lo, hi, dtype = RANGE[kind]
+    data = ARTEFACTS[kind][name](vol.data.astype(np.float64), np.random.default_rng(seed))
+    return Volume(np.clip(np.rint(data), lo, hi).astype(dtype), spacing=vol.spacing, origin=vol.origin,
                   direction=vol.direction)
 
 
@@ -157,8 +199,8 @@ def accuracy(work: Path, products, n: int, seed: int, jobs, artefacts: bool = Fa
             h = synth.read_truth(folder / f"{name}.ply")["voxel_size_mm"]  # the in-plane pixel
             cases = [(kind, read_volume(folder / sub / f"{name}.mha")) for kind, sub in KINDS]
             if artefacts:
-                mri = cases[1][1]
-                cases += [(f"MRI {a}", _with_artefact(mri, a, seed + i)) for a in ARTEFACTS]
+                cases += [(f"{kind} {a}", _with_artefact(vol, kind, a, seed + i))
+                          for kind, vol in list(cases) for a in ARTEFACTS[kind]]
             for kind, vol in cases:
                 t0 = time.perf_counter()
                 with warnings.catch_warnings():
@@ -331,7 +373,8 @@ def main(argv=None) -> int:
     parser.add_argument("--jobs", type=int, default=None, help="processes for making the synthetic volumes")
     parser.add_argument("--out", type=Path, default=None, help="work folder (default: a temporary one)")
     parser.add_argument("--artefacts", action="store_true",
-                        help="also each MRI-like volume with a bias field, Gibbs ringing or stronger noise")
+                        help="also each volume with a scanner's artefacts (MRI: bias field, Gibbs ringing, noise; "
+                             "CT: cupping, rings, noise, blur, a bed)")
     args = parser.parse_args(argv)
 
     with tempfile.TemporaryDirectory(prefix="hortishape-extract-") as tmp:

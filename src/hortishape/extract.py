@@ -34,7 +34,10 @@ millimetres, the kind of scan the rest of hortishape works on:
    solid is the product. When it touches the border of the volume (a
    scanner bed or a support does, the product normally does not), it is
    eroded by ``support_radius``: parts that then come apart from the product
-   and reach the border are dropped as a support.
+   and reach the border are dropped as a support. A support thinner than
+   the erosion (a tray, a plate) is what the product's opening leaves out and
+   reaches the border; a product fused to its bed over a flat base is parted
+   by a larger erosion (:data:`SUPPORT_RADIUS_STEPS`).
 3. **Marching cubes** (Lewiner) on the *intensity*, not on the mask, which is
    what gives sub-voxel accuracy: inside the product the intensity is raised
    above the level where it is below, outside the product every voxel above
@@ -138,6 +141,9 @@ ENCLOSED_CHECKED = 4
 #: of them is the product itself: it is kept whole, with a warning.
 SUPPORT_WARN_SHARE = 0.5
 SUPPORT_REFUSE_SHARE = 0.95
+#: Erosion radii tried in turn to part a support from the product, as
+#: multiples of ``support_radius``: the first that parts them is used.
+SUPPORT_RADIUS_STEPS = (1.0, 2.0, 4.0)
 #: The outermost tissue: rays along the volume's two finest axes, from outside,
 #: stop where two voxels in a row are above the background by ``OUTER_DETECT``
 #: of the contrast (or ``OUTER_NOISE`` times the background's noise, if more);
@@ -654,9 +660,15 @@ def _support_region(product_slab, slabs, shape, spacing_zyx, radius: float, fact
     border of the volume are a support when at least one other piece does
     not (the product). The support is the part of the product within
     ``radius`` (plus a block) of those pieces: the opening of the support.
+    A support thinner than ``2 * radius`` (a plate, a tray) vanishes in the
+    erosion: it is what the product's opening leaves out, reaches the border
+    and reaches far from the product (see :func:`_separate`). Where every
+    eroded piece reaches the border (a thin bed along the volume's edge, whose
+    air below is lost on the coarse grid), the erosion is tried again with
+    the outside of the volume counted as air. Where nothing comes apart, the
+    radius grows (``SUPPORT_RADIUS_STEPS``): a product resting on a bed with a
+    flat base is joined to it over an area wider than ``2 * radius``.
     """
-    from scipy import ndimage
-
     c = factor
     nz, ny, nx = shape
     cz, cy, cx = -(-nz // c), -(-ny // c), -(-nx // c)
@@ -672,22 +684,70 @@ def _support_region(product_slab, slabs, shape, spacing_zyx, radius: float, fact
     any_ = full > 0
     del full
     sampling = np.asarray(spacing_zyx, dtype=np.float64) * c
-    depth = ndimage.distance_transform_edt(half, sampling=sampling)
+    for r in radius * np.asarray(SUPPORT_RADIUS_STEPS):
+        support, all_reach = _separate(half, any_, sampling, float(r), outside_is_air=False)
+        if support is None and all_reach:
+            support, _ = _separate(half, any_, sampling, float(r), outside_is_air=True)
+        if support is not None:
+            return support
+    return None
+
+
+def _separate(half, any_, sampling, radius: float, *, outside_is_air: bool):
+    """One try of :func:`_support_region` on the coarse masks: (support or None,
+    whether every eroded piece reached the border)."""
+    from scipy import ndimage
+
+    six = ndimage.generate_binary_structure(3, 1)
+    block = float(sampling.max())
+    if outside_is_air:
+        depth = ndimage.distance_transform_edt(np.pad(half, 1), sampling=sampling)[1:-1, 1:-1, 1:-1]
+    else:
+        depth = ndimage.distance_transform_edt(half, sampling=sampling)
     core = depth > radius
     del depth
-    lab, n = ndimage.label(core, structure=ndimage.generate_binary_structure(3, 1))
-    if n < 2:
-        return None
+    lab, n = ndimage.label(core, structure=six)
+    touch = _touching_border(lab, n)
+    if n == 0 or touch[1:].all():
+        return None, n > 0
+    if touch.any():
+        # a support at least 2 * radius thick: its own eroded pieces, grown back
+        # through the support's outer layer and a block beyond
+        reach = ndimage.distance_transform_edt(~touch[lab], sampling=sampling)
+        return (reach <= radius + block) & any_, False
+    # none of the eroded product reaches the border, yet the product does: a
+    # support thinner than 2 * radius that the erosion took whole. It is what the
+    # opening (the eroded product grown back by radius, half a block of slack for
+    # the grid) leaves out, where it reaches the border and lies farther from the
+    # eroded product than the rounded rim of a product cut by the border can
+    # (2 * radius and a block); the product's opening itself is never cut
+    del lab
+    grown = ndimage.distance_transform_edt(~core, sampling=sampling)
+    opened = grown <= radius
+    rest = half & ~(grown <= radius + 0.5 * block)
+    lab, n = ndimage.label(rest, structure=six)
+    touch = _touching_border(lab, n)
+    far = np.zeros(n + 1, dtype=bool)
+    far[np.unique(lab[grown > 2.0 * radius + block])] = True
+    del grown
+    # and meets the border over more than a disc of the erosion's diameter: a
+    # plate's edges do, a stalk cut off by the border does not
+    faces = (lab[0], lab[-1], lab[:, 0], lab[:, -1], lab[:, :, 0], lab[:, :, -1])
+    met = sum(np.bincount(f.ravel(), minlength=n + 1) for f in faces) * block**2
+    touch &= far & (met > math.pi * radius**2)
+    if not touch.any():
+        return None, False
+    reach = ndimage.distance_transform_edt(~touch[lab], sampling=sampling)
+    return (reach <= block) & any_ & ~opened, False
+
+
+def _touching_border(lab: np.ndarray, n: int) -> np.ndarray:
+    """Which of the labels 1..n (index 0: the background, always False) reach the array's border."""
     touch = np.zeros(n + 1, dtype=bool)
     for face in (lab[0], lab[-1], lab[:, 0], lab[:, -1], lab[:, :, 0], lab[:, :, -1]):
         touch[face.ravel()] = True
     touch[0] = False
-    if not touch.any() or touch[1:].all():
-        return None
-    seeds = touch[lab]
-    del lab
-    reach = ndimage.distance_transform_edt(~seeds, sampling=sampling)
-    return (reach <= radius + float(sampling.max())) & any_
+    return touch
 
 
 def _upsample(coarse: np.ndarray, z0: int, z1: int, shape_yx, factor: int) -> np.ndarray:
