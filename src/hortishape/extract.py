@@ -163,6 +163,15 @@ OUTER_ANGLE = 20.0
 OUTER_BEFORE_MM = 3.0
 OUTER_AFTER_MM = 6.0
 OUTER_BIN_MM = 0.05
+#: An outer tissue whose rays' mean profile (smoothed over
+#: ``OUTER_STEP_SMOOTH_MM``) is one blurred step up to the product's peak is
+#: the scanner's blur, not a tissue: no dip and no slope rising again by more
+#: than ``OUTER_STEP_SLACK`` of the contrast or of the steepest slope.
+OUTER_STEP_SMOOTH_MM = 0.2
+#: The outer edge's steepest point is sought within this distance of where
+#: the rays cross its edge value.
+OUTER_STEP_NEAR_MM = 1.0
+OUTER_STEP_SLACK = 0.1
 #: The fitted level is kept under this share of the way from the background
 #: to the outer tissue's peak.
 OUTER_MAX_SHARE = 0.75
@@ -336,7 +345,8 @@ def intensity_levels(volume, *, level: float | None = None, name: str = "volume"
     noise = (math.sqrt(np.average((centres[below_bg] - bg) ** 2, weights=counts[below_bg]))
              if counts[below_bg].sum() else 0.0)
     outer, edge, rays = _outer_intensity(vol, bg, fg, noise)
-    if math.isfinite(outer) and abs(outer - fg) > OUTER_DIFFERS * abs(fg - bg):
+    if (math.isfinite(outer) and abs(outer - fg) > OUTER_DIFFERS * abs(fg - bg)
+            and not _one_blurred_step(rays, edge, bg, fg)):
         # magnitude images (MRI) have no values below 0 and their background near 0
         magnitude = vmin >= 0 and bg < 0.1 * (fg - bg)
         fitted = _edge_level(rays, edge, bg, outer, magnitude)
@@ -472,6 +482,44 @@ def _edge_profile(rays, level: float):
     centre = -OUTER_BEFORE_MM + (np.arange(len(count)) + 0.5) * OUTER_BIN_MM
     full = count >= 5
     return centre[full], total[full] / count[full], count[full]
+
+
+def _one_blurred_step(rays, edge: float, background: float, foreground: float) -> bool:
+    """Whether the rays' mean profile is one blurred step from the background to the product.
+
+    A scanner's blur wider than ``OUTER_WINDOW_MM`` keeps the rays' brightest
+    voxel within the window below the product's peak, as an outer tissue of
+    its own would. Along one blurred step the profile, past the outer
+    edge's steepest point (within ``OUTER_STEP_NEAR_MM`` of where the rays
+    cross the edge's value), rises ever more slowly until it reaches the product's peak
+    (within ``OUTER_DIFFERS`` of the contrast); a layer of its own shows a
+    dip (a dark rind under a bright peel) or a plateau whose slope rises
+    again (a darker rind over the flesh): by more than ``OUTER_STEP_SLACK``
+    of the steepest slope, or of the contrast for a dip.
+    """
+    from scipy.ndimage import gaussian_filter1d
+
+    u, mean, _ = _edge_profile(rays, edge)
+    if len(u) < 20:
+        return False
+    grid = np.arange(u[0], u[-1], OUTER_BIN_MM)
+    v = gaussian_filter1d(np.interp(grid, u, mean), OUTER_STEP_SMOOTH_MM / OUTER_BIN_MM)
+    contrast = foreground - background
+    top = np.flatnonzero((grid >= 0.0) & (v >= foreground - OUTER_DIFFERS * contrast))
+    if not len(top):
+        return False
+    slope = np.gradient(v, OUTER_BIN_MM)
+    # the outer edge's steepest point: near where the rays cross its edge value (u = 0),
+    # not a steeper edge further in
+    near = np.flatnonzero(np.abs(grid[: top[0] + 1]) <= OUTER_STEP_NEAR_MM)
+    if not len(near):
+        return False
+    steepest = int(near[np.argmax(slope[near])])
+    after = slope[steepest : top[0] + 1]
+    rises_again = np.max(after - np.minimum.accumulate(after)) > OUTER_STEP_SLACK * slope[steepest]
+    rest = v[steepest : top[0] + 1]
+    dips = np.max(np.maximum.accumulate(rest) - rest) > OUTER_STEP_SLACK * contrast
+    return not (rises_again or dips)
 
 
 def _edge_level(rays, provisional: float, background: float, outer: float, magnitude: bool) -> float:
