@@ -345,11 +345,13 @@ def intensity_levels(volume, *, level: float | None = None, name: str = "volume"
     noise = (math.sqrt(np.average((centres[below_bg] - bg) ** 2, weights=counts[below_bg]))
              if counts[below_bg].sum() else 0.0)
     outer, edge, rays = _outer_intensity(vol, bg, fg, noise)
-    if (math.isfinite(outer) and abs(outer - fg) > OUTER_DIFFERS * abs(fg - bg)
-            and not _one_blurred_step(rays, edge, bg, fg)):
+    # the rays' edge profile, once: both the blur test and the layer model read it
+    profile = (_edge_profile(rays, edge) if math.isfinite(outer) and abs(outer - fg) > OUTER_DIFFERS * abs(fg - bg)
+               else None)
+    if profile is not None and not _one_blurred_step(profile, bg, fg):
         # magnitude images (MRI) have no values below 0 and their background near 0
         magnitude = vmin >= 0 and bg < 0.1 * (fg - bg)
-        fitted = _edge_level(rays, edge, bg, outer, magnitude)
+        fitted = _edge_level(profile, bg, outer, magnitude)
         # a blurred edge's middle lies below OUTER_MAX_SHARE of its peak when the peel
         # is at least twice as thick as the blur: a fit above that is one a coarse
         # profile could not fix (a thin peel's brightness and thickness trade off)
@@ -484,8 +486,9 @@ def _edge_profile(rays, level: float):
     return centre[full], total[full] / count[full], count[full]
 
 
-def _one_blurred_step(rays, edge: float, background: float, foreground: float) -> bool:
-    """Whether the rays' mean profile is one blurred step from the background to the product.
+def _one_blurred_step(profile, background: float, foreground: float) -> bool:
+    """Whether the rays' mean profile (:func:`_edge_profile`) is one blurred step from the
+    background to the product.
 
     A scanner's blur wider than ``OUTER_WINDOW_MM`` keeps the rays' brightest
     voxel within the window below the product's peak, as an outer tissue of
@@ -499,7 +502,7 @@ def _one_blurred_step(rays, edge: float, background: float, foreground: float) -
     """
     from scipy.ndimage import gaussian_filter1d
 
-    u, mean, _ = _edge_profile(rays, edge)
+    u, mean, _ = profile
     if len(u) < 20:
         return False
     grid = np.arange(u[0], u[-1], OUTER_BIN_MM)
@@ -522,8 +525,9 @@ def _one_blurred_step(rays, edge: float, background: float, foreground: float) -
     return not (rises_again or dips)
 
 
-def _edge_level(rays, provisional: float, background: float, outer: float, magnitude: bool) -> float:
-    """The intensity on the outer boundary, from a model of the layers fitted to the rays' edge profile.
+def _edge_level(profile, background: float, outer: float, magnitude: bool) -> float:
+    """The intensity on the outer boundary, from a model of the layers fitted to the rays' edge
+    profile (:func:`_edge_profile`, placed at the edge's first estimate).
 
     Along the normal, the intensity steps from the background ``b`` to the
     outer tissue ``P`` at the boundary, then to a second layer ``R`` and a
@@ -538,7 +542,7 @@ def _edge_level(rays, provisional: float, background: float, outer: float, magni
     from scipy.optimize import least_squares
     from scipy.special import ndtr
 
-    u, mean, count = _edge_profile(rays, provisional)
+    u, mean, count = profile
     if len(u) < 20:
         return float("nan")
     weight = np.sqrt(count)
@@ -755,7 +759,7 @@ def _separate(half, any_, sampling, radius: float, *, outside_is_air: bool):
     core = depth > radius
     del depth
     lab, n = ndimage.label(core, structure=six)
-    touch = _touching_border(lab, n)
+    touch = _border_blocks(lab, n) > 0
     if n == 0 or touch[1:].all():
         return None, n > 0
     if touch.any():
@@ -774,14 +778,13 @@ def _separate(half, any_, sampling, radius: float, *, outside_is_air: bool):
     opened = grown <= radius
     rest = half & ~(grown <= radius + 0.5 * block)
     lab, n = ndimage.label(rest, structure=six)
-    touch = _touching_border(lab, n)
+    met = _border_blocks(lab, n) * block**2
+    touch = met > 0
     far = np.zeros(n + 1, dtype=bool)
     far[np.unique(lab[grown > 2.0 * radius + block])] = True
     del grown
     # and meets the border over more than a disc of the erosion's diameter: a
     # plate's edges do, a stalk cut off by the border does not
-    faces = (lab[0], lab[-1], lab[:, 0], lab[:, -1], lab[:, :, 0], lab[:, :, -1])
-    met = sum(np.bincount(f.ravel(), minlength=n + 1) for f in faces) * block**2
     touch &= far & (met > math.pi * radius**2)
     if not touch.any():
         return None, False
@@ -789,13 +792,12 @@ def _separate(half, any_, sampling, radius: float, *, outside_is_air: bool):
     return (reach <= block) & any_ & ~opened, False
 
 
-def _touching_border(lab: np.ndarray, n: int) -> np.ndarray:
-    """Which of the labels 1..n (index 0: the background, always False) reach the array's border."""
-    touch = np.zeros(n + 1, dtype=bool)
-    for face in (lab[0], lab[-1], lab[:, 0], lab[:, -1], lab[:, :, 0], lab[:, :, -1]):
-        touch[face.ravel()] = True
-    touch[0] = False
-    return touch
+def _border_blocks(lab: np.ndarray, n: int) -> np.ndarray:
+    """How many border cells of the array each label 0..n holds (label 0, the background: 0)."""
+    faces = (lab[0], lab[-1], lab[:, 0], lab[:, -1], lab[:, :, 0], lab[:, :, -1])
+    counts = sum(np.bincount(f.ravel(), minlength=n + 1) for f in faces)
+    counts[0] = 0
+    return counts
 
 
 def _upsample(coarse: np.ndarray, z0: int, z1: int, shape_yx, factor: int) -> np.ndarray:
