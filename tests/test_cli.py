@@ -128,7 +128,7 @@ def test_every_option_the_readme_names_exists():
     import re
     from pathlib import Path
 
-    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8")
     commands = _subparsers()
     options = {name: {s for a in sub._actions for s in a.option_strings} for name, sub in commands.items()}
     everywhere = set().union(*options.values())
