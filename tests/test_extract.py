@@ -290,7 +290,7 @@ def test_slabs_specks_and_pockets_do_not_change_the_surface(monkeypatch):
     pockets = deep[rng.choice(len(deep), 3000, replace=False)]
     dirty[tuple(pockets.T)] = 0.0  # 3000 one-voxel air pockets inside
     # slabs of 3 planes: labels cross many slab boundaries, and a slab holds more
-    # than 255 specks or pockets, so their labels are recomputed instead of stored
+    # than 255 specks or pockets, so their labels take more than a byte each
     monkeypatch.setattr(extract, "_SLAB_VOXELS", 3 * 56 * 56)
     monkeypatch.setattr(extract, "_COARSE_VOXELS", 56**3)
     sliced = extract_surface(dirty, smoothing=0, level=reference.levels.level)
@@ -635,3 +635,39 @@ def test_a_narrow_channel_to_the_core_is_closed_over():
     assert ext.genus == 0 and ext.gap_mm >= 2.0
     assert ext.attempts[0]["genus"] == 0 and ext.attempts[0]["channel_mm"] > 10.0
     assert ext.volume == pytest.approx(4 / 3 * np.pi * 25.0**3, rel=0.01)  # the core filled
+
+
+def test_slab_labels_come_back_as_they_were_kept():
+    from hortishape.extract import _Runs
+
+    smooth = np.zeros((4, 30, 40), dtype=np.int32)
+    smooth[:, 5:20, 10:30] = 1
+    smooth[1:3, 22:28, 2:8] = 300  # more labels than a byte holds
+    noisy = np.random.default_rng(0).integers(0, 3, (4, 30, 40)).astype(np.int32)
+    for labels, n, as_runs in ((smooth, 300, True), (noisy, 2, False)):
+        kept = _Runs(labels, n)
+        assert (kept.plain is None) == as_runs
+        np.testing.assert_array_equal(kept.array(), labels)
+
+
+def test_a_large_surface_is_drawn_from_a_coarser_copy(monkeypatch):
+    import trimesh
+
+    sphere = trimesh.creation.icosphere(6, radius=40.0)  # 40,962 vertices
+    mesh = Mesh(sphere.vertices, sphere.faces)
+    monkeypatch.setattr(extract, "_PICTURE_VERTICES", 5000)
+    small = extract._picture_surface(mesh)
+    used = np.unique(small.faces)
+    assert 3000 < len(used) < 8000
+    # outward, no face twice, hardly any hole: nothing that would draw as a seam
+    centres = small.vertices[small.faces].mean(axis=1)
+    normals = np.cross(*(small.vertices[small.faces[:, k]] - small.vertices[small.faces[:, 0]] for k in (1, 2)))
+    assert (np.einsum("ij,ij->i", normals, centres) > 0).all()
+    assert len(np.unique(np.sort(small.faces, axis=1), axis=0)) == small.n_faces
+    edges = np.sort(np.concatenate([small.faces[:, [0, 1]], small.faces[:, [1, 2]], small.faces[:, [2, 0]]]), axis=1)
+    _, uses = np.unique(edges, axis=0, return_counts=True)
+    assert (uses == 1).mean() < 0.01
+    assert face_areas(small.vertices, small.faces).sum() == pytest.approx(4 * np.pi * 40.0**2, rel=0.02)
+    few = trimesh.creation.icosphere(4)  # 2,562 vertices
+    few = Mesh(few.vertices, few.faces)
+    assert extract._picture_surface(few) is few  # drawn as it is

@@ -1165,3 +1165,18 @@ def test_point_clouds_round_trip_and_mesh_files_give_their_vertices(tmp_path, sh
         read_points(tmp_path / "empty.ply")
     with pytest.raises(MeshError, match="finite"):
         write_points(tmp_path / "nan.ply", np.full((3, 3), np.nan))
+
+
+def test_binary_ply_written_in_blocks_reads_back_whole(tmp_path, monkeypatch):
+    from hortishape.io import ply
+
+    monkeypatch.setattr(ply, "_WRITE_BLOCK", 1000)  # blocks of 1,000: 3 or 4 per element here
+    rng = np.random.default_rng(5)
+    vertices, faces = rng.normal(size=(2500, 3)), rng.integers(0, 2500, size=(3100, 3))
+    colors, error = rng.integers(0, 256, size=(2500, 3)).astype(np.uint8), rng.normal(size=2500)
+    path = write_mesh(tmp_path / "blocks.ply", vertices, faces, vertex_colors=colors, vertex_scalars={"e": error})
+    data = read_mesh_data(path)
+    np.testing.assert_array_equal(data.mesh.vertices, vertices)
+    np.testing.assert_array_equal(data.mesh.faces, faces)
+    np.testing.assert_array_equal(data.vertex_colors, colors)
+    np.testing.assert_array_equal(data.vertex_scalars["e"], error)

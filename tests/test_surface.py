@@ -125,3 +125,16 @@ def test_several_holes_and_holes_that_touch():
     drop[[around[0], ring[0]]] = True
     with pytest.raises(MeshError, match="touch at a vertex"):
         fill_holes(Mesh(sphere.vertices, sphere.faces[~drop]))
+
+
+def test_int32_faces_of_a_large_open_surface_name_its_holes():
+    import trimesh
+
+    from hortishape.surface import _checked_arrays
+
+    # 163,842 vertices: an edge key (vertex * n + vertex) overflows int32
+    s = trimesh.creation.icosphere(7)
+    faces = s.faces.astype(np.int32)
+    assert _checked_arrays(s.vertices, faces, name="ball", allow_degenerate=False, allow_holes=False)[0] == 1.0
+    with pytest.raises(MeshError, match=r"ball: the surface is not closed \(3 boundary edges\)"):
+        _checked_arrays(s.vertices, faces[1:], name="ball", allow_degenerate=False, allow_holes=False)

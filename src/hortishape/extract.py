@@ -58,9 +58,9 @@ voxels.
 Memory: a 512^3 ``int16`` volume is 256 MB, a 1000^3 one 2 GB. The work is
 done in slabs of a few million voxels along the volume's last axis.
 Connected components are labelled slab by slab and joined with a union-find
-over the slab boundaries; the only whole-volume array besides the volume is
-one byte per voxel (each slab's labels), and meshing runs slab by slab on the
-object's bounding box.
+over the slab boundaries; each slab's labels are kept as runs along its rows
+(a smooth mask has a few per row), the outside as one bit per voxel, and
+meshing runs slab by slab on the object's bounding box.
 
 :func:`extract_files` runs a batch of volume files (``hortishape extract``)
 resumably; :func:`render_extraction` draws the surface beside two slices of
@@ -87,6 +87,7 @@ from ._version import __version__
 from ._batch import raise_failed, run_jobs
 from .errors import ExtractionWarning, HortishapeError, MeshError, VolumeError
 from ._files import Progress, atomic_path
+from ._memory import give_back_freed_memory
 from .io import Volume, read_volume, volume_formats, write_mesh
 from .mesh import Mesh
 from .units import PLAUSIBLE_EXTENT_MM, SizeCheck, check_size, likely_unit
@@ -600,6 +601,33 @@ def _slab_bounds(lo: int, hi: int, step: int) -> list[tuple[int, int]]:
     return out
 
 
+class _Runs:
+    """A slab's labels as runs of equal values along the flattened array.
+
+    Kept as they are (in the smallest integer type) when runs would take more
+    memory, as for a noisy mask.
+    """
+
+    def __init__(self, lab: np.ndarray, n_labels: int) -> None:
+        dtype = np.min_scalar_type(n_labels)
+        flat = lab.ravel()
+        starts = np.flatnonzero(flat[1:] != flat[:-1]) + 1
+        self.shape = lab.shape
+        if (len(starts) + 1) * (4 + dtype.itemsize) >= flat.size * dtype.itemsize:
+            self.plain, self.starts, self.values = lab.astype(dtype), None, None
+        else:
+            self.plain = None
+            self.starts = starts.astype(np.int32 if flat.size < 2**31 else np.int64)
+            self.values = flat[np.r_[0, starts]].astype(dtype)
+
+    def array(self) -> np.ndarray:
+        if self.plain is not None:
+            return self.plain
+        size = int(np.prod(self.shape))
+        lengths = np.diff(np.r_[0, self.starts, size])
+        return np.repeat(self.values, lengths).reshape(self.shape)
+
+
 class _Components:
     """6-connected components of a mask, labelled slab by slab along axis 0.
 
@@ -607,21 +635,20 @@ class _Components:
     region of the volume (shape ``(Z, Y, X)`` in region coordinates). Each
     slab is labelled with :func:`scipy.ndimage.label`; labels that touch
     across a slab boundary are joined (union-find by a sparse graph). A slab's
-    labels are kept in ``work`` (one byte per voxel) when they fit, otherwise
-    they are computed again when needed (labelling is deterministic).
+    labels are kept as runs along the flattened slab (a smooth mask has a few
+    runs per row: kilobytes where the labels themselves take megabytes), or
+    as they are when runs would not save memory (:class:`_Runs`).
 
     Attributes per component (index ``c``): ``size[c]`` voxels and
     ``border[c]``, whether it touches the region's border.
     """
 
-    def __init__(self, get_mask, slabs, work) -> None:
+    def __init__(self, get_mask, slabs) -> None:
         from scipy import ndimage
         from scipy.sparse import coo_matrix
         from scipy.sparse.csgraph import connected_components
 
-        self.get_mask = get_mask
         self.slabs = slabs
-        self.work = work
         self.z_lo = slabs[0][0]
         self._structure = ndimage.generate_binary_structure(3, 1)
         offsets, counts, stored = [], [], []
@@ -651,10 +678,7 @@ class _Components:
                         key = np.unique(key[np.r_[True, key[1:] != key[:-1]]])
                         pairs.append(np.stack([key >> 32, (key & 0xFFFFFFFF) + total], axis=1))
             previous = np.where(lab[-1] > 0, lab[-1].astype(np.int64) + total, 0) if n else None
-            keep = work is not None and n <= 255
-            if keep:
-                work[z0 - self.z_lo : z1 - self.z_lo] = lab
-            stored.append(keep)
+            stored.append(_Runs(lab, n))
             total += n
             del lab
         self.offsets, self.counts, self.stored = offsets, counts, stored
@@ -681,12 +705,7 @@ class _Components:
 
     def labels(self, k: int) -> np.ndarray:
         """The local labels of slab ``k`` (stored, or computed again)."""
-        from scipy import ndimage
-
-        z0, z1 = self.slabs[k]
-        if self.stored[k]:
-            return self.work[z0 - self.z_lo : z1 - self.z_lo]
-        return ndimage.label(self.get_mask(z0, z1), structure=self._structure)[0]
+        return self.stored[k].array()
 
     def select(self, k: int, chosen: np.ndarray, *, labels: np.ndarray | None = None) -> np.ndarray:
         """Mask of slab ``k``: voxels whose component is ``chosen`` ((n_components,) bool)."""
@@ -814,7 +833,7 @@ def _upsample(coarse: np.ndarray, z0: int, z1: int, shape_yx, factor: int) -> np
 
 
 def _adjacency(faces: np.ndarray, n: int, *, closed: bool = False):
-    """Vertex adjacency (n, n) CSR with ones, from the faces' directed edges.
+    """Vertex adjacency (n, n) CSR with int8 ones, from the faces' directed edges.
 
     On a closed, consistently oriented surface every edge is in the faces once
     in each direction, so the directed edges alone are the whole (symmetric)
@@ -824,14 +843,44 @@ def _adjacency(faces: np.ndarray, n: int, *, closed: bool = False):
 
     f = np.asarray(faces)
     index = np.int32 if n < 2**31 - 1 else np.int64
-    rows = f.astype(index).ravel()  # edges (0, 1), (1, 2), (2, 0) of every face
+    # edges (0, 1), (1, 2), (2, 0) of every face; the rows are the faces themselves when they are int32
+    rows = np.ascontiguousarray(f, dtype=index).ravel()
     cols = f[:, [1, 2, 0]].astype(index).ravel()
-    a = sp.csr_matrix((np.ones(len(rows), dtype=np.float32), (rows, cols)), shape=(n, n))
+    a = sp.csr_matrix((np.ones(len(rows), dtype=np.int8), (rows, cols)), shape=(n, n))
     del rows, cols
     if not closed:
         a = a.maximum(a.T).tocsr()
-    a.data[:] = 1.0
     return a
+
+
+_ROWS_PER_BLOCK = 1 << 16
+
+
+def _neighbour_sum(a):
+    """The product ``a @ v`` with an adjacency matrix ``a`` of ones, row block by row block.
+
+    A product needs float64 values (any other type is copied to float64 at
+    every product), but they are all ones: the blocks share one buffer of
+    ones, as long as a block's edges, instead of one value per edge.
+    """
+    import scipy.sparse as sp
+
+    n = a.shape[0]
+    bounds = [(r, min(r + _ROWS_PER_BLOCK, n)) for r in range(0, n, _ROWS_PER_BLOCK)]
+    ones = np.ones(max(int(a.indptr[r1] - a.indptr[r0]) for r0, r1 in bounds) if n else 0)
+    blocks = []
+    for r0, r1 in bounds:
+        p0, p1 = int(a.indptr[r0]), int(a.indptr[r1])
+        blocks.append(sp.csr_matrix((ones[: p1 - p0], a.indices[p0:p1], a.indptr[r0 : r1 + 1] - p0),
+                                    shape=(r1 - r0, a.shape[1])))
+
+    def product(v: np.ndarray) -> np.ndarray:
+        out = np.empty_like(v)
+        for (r0, r1), b in zip(bounds, blocks):
+            out[r0:r1] = b @ v
+        return out
+
+    return product
 
 
 def _taubin(v: np.ndarray, faces: np.ndarray, iterations: int, pass_band: float, lam: float,
@@ -839,16 +888,20 @@ def _taubin(v: np.ndarray, faces: np.ndarray, iterations: int, pass_band: float,
     """Taubin smoothing of ``v`` in place (see :func:`taubin_smooth`)."""
     mu = 1.0 / (pass_band - 1.0 / lam)
     a = _adjacency(faces, len(v), closed=closed)
-    degree = np.asarray(a.sum(axis=1)).ravel()
+    degree = np.diff(a.indptr).astype(np.float64)
+    neighbours = _neighbour_sum(a)
+    del a
     moving = (degree > 0)[:, None]
     inv = np.divide(1.0, degree, out=np.zeros_like(degree), where=degree > 0)[:, None]
+    every = bool(moving.all())
     for _ in range(iterations):
         for step in (lam, mu):
-            delta = a @ v
+            delta = neighbours(v)
             delta *= inv
-            delta -= v * moving
+            delta -= v if every else v * moving
             delta *= step
             v += delta
+            del delta
     return v
 
 
@@ -1040,25 +1093,40 @@ def _weld(chunks, boundaries) -> tuple[np.ndarray, np.ndarray]:
     """Join per-slab marching-cubes meshes: merge the copies of vertices on shared planes.
 
     Both slabs next to a shared plane interpolate the same edges of that plane
-    from the same two values, so the copies are bit-identical.
+    from the same two values, so the copies are bit-identical. ``chunks`` holds
+    ``[vertices (plane, y, x), faces, the chunk's origin (x, y, z)]``; the
+    vertices come back in volume indices along x, y, z, and the faces as int32
+    when the vertices allow (half the memory of a million-vertex surface's
+    int64 faces). The pieces are freed as they are copied.
     """
-    offsets = np.cumsum([0] + [len(c[0]) for c in chunks[:-1]])
-    faces = np.concatenate([c[1].astype(np.int64) + o for c, o in zip(chunks, offsets)])
+    n_verts = sum(len(c[0]) for c in chunks)
+    index_type = np.int32 if n_verts < 2**31 - 1 else np.int64
+    verts = np.empty((n_verts, 3), dtype=np.float64)
+    faces = np.empty((sum(len(c[1]) for c in chunks), 3), dtype=index_type)
+    nv = nf = 0
     for c in chunks:
-        c[1] = None
-    verts = np.concatenate([c[0] for c in chunks])
-    chunks.clear()  # the caller's list: free the pieces
-    index = np.arange(len(verts))
+        v, f, origin = c
+        c[:] = [None, None, None]
+        part = verts[nv : nv + len(v)]
+        part[...] = v[:, ::-1]
+        part += np.asarray(origin, dtype=np.float64)
+        np.add(f, nv, out=faces[nf : nf + len(f)], casting="unsafe")
+        nv, nf = nv + len(v), nf + len(f)
+        del v, f
+    chunks.clear()  # the caller's list
+    index = np.arange(n_verts, dtype=index_type)
     if len(boundaries):
         on_plane = np.flatnonzero(np.isin(verts[:, 2], np.asarray(boundaries, dtype=np.float64)))
         if len(on_plane):
             _, first, inverse = np.unique(verts[on_plane], axis=0, return_index=True, return_inverse=True)
             index[on_plane] = on_plane[first[np.ravel(inverse)]]
-    faces = index[faces]
-    used = np.zeros(len(verts), dtype=bool)
+    # in place ("clip": the indices are in range, and "raise" would copy the faces first)
+    np.take(index, faces, out=faces, mode="clip")
+    used = np.zeros(n_verts, dtype=bool)
     used[faces.ravel()] = True
-    renumber = np.cumsum(used) - 1
-    return verts[used], renumber[faces]
+    renumber = np.cumsum(used, dtype=index_type) - 1
+    np.take(renumber, faces, out=faces, mode="clip")
+    return verts[used], faces
 
 
 def _opened_free(data: np.ndarray, iso: float, z0: int, z1: int, box) -> np.ndarray:
@@ -1162,7 +1230,7 @@ class _Segmentation:
         return self.genus == 0 and not self.enclosed and self.pit_mm <= PIT_DEPTH * extent
 
 
-def _segment(data, iso: float, spacing_zyx, slabs, work, *, gap_mm: float, remove_support: bool,
+def _segment(data, iso: float, spacing_zyx, slabs, *, gap_mm: float, remove_support: bool,
              support_radius: float, coarse: int, name: str) -> _Segmentation:
     """The product for one gap width: the largest piece of what cannot be reached from outside.
 
@@ -1175,16 +1243,15 @@ def _segment(data, iso: float, spacing_zyx, slabs, work, *, gap_mm: float, remov
     shape = data.shape
     box = _probe_box(gap_mm, spacing_zyx)
     slab_of = {z0: k for k, (z0, _) in enumerate(slabs)}
-    # the outside's labels go to `work` for a moment; the outside is kept as one bit
-    # per voxel, and `work` then holds the solid's labels
-    outs = _Components(lambda z0, z1: _opened_free(data, iso, z0, z1, box), slabs, work)
+    # the outside is kept as one bit per voxel, its labels only for a moment
+    outs = _Components(lambda z0, z1: _opened_free(data, iso, z0, z1, box), slabs)
     outside = [np.packbits(outs.select(k, outs.border), axis=-1) for k in range(len(slabs))]
     del outs
 
     def solid(z0: int, z1: int) -> np.ndarray:
         return ~np.unpackbits(outside[slab_of[z0]], axis=-1, count=shape[2]).view(bool)
 
-    fg = _Components(solid, slabs, work)
+    fg = _Components(solid, slabs)
     if fg.n_labels == 0:
         raise VolumeError(f"{name}: no voxel is above the level {iso:g}; no object")
     product = np.zeros(len(fg.size), dtype=bool)
@@ -1195,11 +1262,12 @@ def _segment(data, iso: float, spacing_zyx, slabs, work, *, gap_mm: float, remov
                                   support_radius, coarse)
         if support is not None:
             before = int(fg.size[product][0])
+            whole = fg
 
             def solid_not_support(z0: int, z1: int) -> np.ndarray:
                 return solid(z0, z1) & ~_upsample(support, z0, z1, shape[1:], coarse)
 
-            fg = _Components(solid_not_support, slabs, work)
+            fg = _Components(solid_not_support, slabs)
             free = np.flatnonzero(~fg.border)
             pool = free if len(free) else np.arange(len(fg.size))
             kept = np.zeros(len(fg.size), dtype=bool)
@@ -1208,9 +1276,7 @@ def _segment(data, iso: float, spacing_zyx, slabs, work, *, gap_mm: float, remov
             if n_support > SUPPORT_REFUSE_SHARE * before:
                 # not a support: the product itself, but for a fragment; keep it whole
                 refused, n_support = n_support, 0
-                fg = _Components(solid, slabs, work)  # again: the labels in `work` were overwritten
-                product = np.zeros(len(fg.size), dtype=bool)
-                product[int(np.argmax(fg.size))] = True
+                fg = whole
             else:
                 product = kept
     n_solid = int(fg.size[product][0])
@@ -1358,17 +1424,14 @@ def _march(vol: Volume, data, iso: float, seg: _Segmentation, inside_value: floa
         del d, high, inside, core
         verts, faces, _, _ = marching_cubes(j, level=float(level32), allow_degenerate=True)
         del j
-        # (plane, y, x) of the chunk -> volume indices along x, y, z
-        idx = np.empty((len(verts), 3), dtype=np.float64)
-        idx[:, 0] = verts[:, 2] + (int(r_lo[2]) - 1)
-        idx[:, 1] = verts[:, 1] + (int(r_lo[1]) - 1)
-        idx[:, 2] = verts[:, 0] + first_plane
-        chunks.append([idx, faces])
+        # the chunk's (plane, y, x) and where its origin lies in the volume's x, y, z
+        chunks.append([verts, faces, (int(r_lo[2]) - 1, int(r_lo[1]) - 1, first_plane)])
         if not last:
             boundaries.append(float(z1))
-        del verts
+        del verts, faces
     if not chunks:  # pragma: no cover - the product has voxels above the level
         raise VolumeError(f"no surface found at the level {iso:g}")
+    give_back_freed_memory()
     return _weld(chunks, boundaries)
 
 
@@ -1379,8 +1442,8 @@ def _mesh_product(vol: Volume, iso: float, inside_value: float, outside_value: f
     The gap widths are tried in turn (:func:`_segment`) until the product is
     one solid of genus 0 that encloses no other piece; the last is kept
     otherwise. Returns ``(index_vertices (n, 3) float64 along x, y, z,
-    faces (m, 3) int64, bounds, the segmentation, the attempts)``. Every
-    whole-volume work array lives only inside this function.
+    faces (m, 3) int64, bounds, the segmentation, the attempts)``. Only the
+    attempt at hand keeps its labels (as runs, :class:`_Runs`).
     """
     # (z, y, x) view: slabs along the volume's last axis are contiguous in memory
     # for volumes read from files (x varies fastest on disk).
@@ -1391,13 +1454,15 @@ def _mesh_product(vol: Volume, iso: float, inside_value: float, outside_value: f
     step = max(1, _SLAB_VOXELS // (shape[1] * shape[2]))
     step = max(coarse, step - step % coarse)
     slabs = _slab_bounds(0, shape[0], step)
-    work = np.empty(shape, dtype=np.uint8)  # each slab's labels: one byte per voxel
     attempts = []
     for i, gap in enumerate(gaps_mm):
         last = i == len(gaps_mm) - 1
-        seg = _segment(data, iso, spacing_zyx, slabs, work, gap_mm=float(gap), remove_support=remove_support,
+        for s in attempts:
+            s.fg = None
+        seg = _segment(data, iso, spacing_zyx, slabs, gap_mm=float(gap), remove_support=remove_support,
                        support_radius=support_radius, coarse=coarse, name=name)
         attempts.append(seg)
+        give_back_freed_memory()
         if not (seg.closed() or last):
             continue
         if seg.n_object < _MIN_OBJECT_VOXELS:
@@ -1416,8 +1481,7 @@ def _mesh_product(vol: Volume, iso: float, inside_value: float, outside_value: f
         if seg.mesh_genus == 0 or last:
             break
     for s in attempts:
-        s.fg = None  # free the labels (a byte per voxel)
-    del work
+        s.fg = None  # free the labels
     bounds = np.stack([seg.lo[::-1], seg.hi[::-1]], axis=1).astype(np.int64)
     return index_vertices, faces, bounds, seg, attempts
 
@@ -1501,7 +1565,7 @@ def extract_surface(
     >>> round(ext.volume / (4 / 3 * np.pi * 12**3), 2)
     1.0
     """
-    from .surface import check_closed_surface, signed_volume
+    from .surface import _checked_arrays, check_closed_surface, signed_volume
 
     vol = _as_volume(volume)
     _check_options(smoothing, target_vertices, support_radius)
@@ -1514,18 +1578,24 @@ def extract_surface(
         vol, iso, inside_value, outside_value, remove_support=remove_support,
         support_radius=float(support_radius), gaps_mm=GAPS_MM, name=name)
     n_mc = len(index_vertices)
-    world = vol.origin + (index_vertices * vol.spacing) @ vol.direction.T
+    index_vertices *= vol.spacing
+    world = index_vertices @ vol.direction.T
     del index_vertices
+    world += vol.origin
     if signed_volume(world, faces) < 0:  # outward normals
-        faces = faces[:, ::-1]
+        faces[:, [0, 2]] = faces[:, [2, 0]]  # reversed in place: (a, b, c) -> (c, b, a)
+    give_back_freed_memory()
     if smoothing:
         world = _taubin(world, faces, int(smoothing), 0.1, 0.5, closed=True)
-    mesh = Mesh(world, np.ascontiguousarray(faces))
+        give_back_freed_memory()
+    # marching cubes' degenerate slivers are harmless here; checked on the arrays,
+    # before the Mesh's copies of them
+    _checked_arrays(world, faces, name=name, allow_degenerate=True, allow_holes=False)
+    mesh = Mesh(world, faces)
     del world, faces
     if target_vertices is not None:
         mesh = decimate(mesh, int(target_vertices))
-    # marching cubes' degenerate slivers (allow_degenerate above) are harmless here
-    check_closed_surface(mesh, name=name, allow_degenerate=True)
+        check_closed_surface(mesh, name=name, allow_degenerate=True)
     tried = tuple({"gap_mm": a.gap_mm, "genus": a.genus, "mesh_genus": a.mesh_genus, "enclosed": a.enclosed,
                    "channel_mm": round(a.pit_mm, 2) if math.isfinite(a.pit_mm) else None,
                    "n_filled_voxels": a.n_filled} for a in attempts)
@@ -1614,6 +1684,55 @@ def _slice_segments(index_vertices: np.ndarray, faces: np.ndarray, axis: int, po
     return np.take_along_axis(points, order[:, :, None], axis=1)
 
 
+_PICTURE_VERTICES = 150_000  # more than a 520-pixel picture shows
+_PICTURE_SIZE = (1500, 520)  # render_extraction's default, width and height in pixels
+
+
+def _picture_surface(mesh: Mesh) -> Mesh:
+    """``mesh``, or for a large one a coarser copy for the picture (vertex clustering).
+
+    The vertices in each cell of a grid are merged into their mean, with the
+    cells sized to leave about ``_PICTURE_VERTICES``. Faces that collapse,
+    that the merge turned over, or that two sheets now share are dropped:
+    drawn, they would show as dark seams. Fast and good enough to look at (not
+    a surface to measure).
+    """
+    from .surface import _face_cross
+
+    if mesh.n_vertices <= _PICTURE_VERTICES:
+        return mesh
+    v, f = mesh.vertices, mesh.faces
+    block = 1 << 18
+    area = sum(0.5 * float(np.linalg.norm(_face_cross(v, f[i : i + block]), axis=1).sum())
+               for i in range(0, len(f), block))
+    cell = math.sqrt(area / _PICTURE_VERTICES)
+    grid = np.floor((v - v.min(axis=0)) / cell).astype(np.int64)
+    dims = grid.max(axis=0) + 1
+    _, inverse = np.unique((grid[:, 0] * dims[1] + grid[:, 1]) * dims[2] + grid[:, 2], return_inverse=True)
+    del grid
+    n = int(inverse.max()) + 1
+    inverse = inverse.ravel().astype(np.int32 if n < 2**31 - 1 else np.int64)
+    count = np.bincount(inverse)
+    merged = np.stack([np.bincount(inverse, weights=v[:, d]) for d in range(3)], axis=1) / count[:, None]
+    tri = inverse[f]
+    # each cell's outward direction: the area-weighted normals of the faces at its vertices
+    outward = np.zeros((n, 3))
+    for i in range(0, len(f), block):
+        normal, corners = _face_cross(v, f[i : i + block]), tri[i : i + block]
+        for d in range(3):
+            outward[:, d] += sum(np.bincount(corners[:, k], weights=normal[:, d], minlength=n) for k in range(3))
+    tri = tri[(tri[:, 0] != tri[:, 1]) & (tri[:, 1] != tri[:, 2]) & (tri[:, 2] != tri[:, 0])]
+    # every copy of a face that two sheets now share (they face both ways), then the faces turned over
+    corners = np.sort(tri, axis=1).astype(np.int64)
+    if n < 2_000_000:  # one key per face: (a n + b) n + c fits in int64
+        corners = (corners[:, 0] * n + corners[:, 1]) * n + corners[:, 2]
+    _, first, copies = np.unique(corners, axis=0 if corners.ndim == 2 else None, return_index=True,
+                                 return_counts=True)
+    del corners
+    tri = tri[np.sort(first[copies == 1])]
+    return Mesh(merged, tri[np.einsum("ij,ij->i", _face_cross(merged, tri), outward[tri].sum(axis=1)) > 0])
+
+
 def render_extraction(volume, extraction: Extraction, path, *, title: str | None = None,
                       size: tuple[int, int] = (1500, 520), backend: str = "auto") -> Path:
     """Picture of an extracted surface beside two slices of its volume, for checking by eye.
@@ -1652,6 +1771,42 @@ def render_extraction(volume, extraction: Extraction, path, *, title: str | None
     >>> render_extraction(data, ext, tempfile.mkdtemp() + "/sphere.png", backend="matplotlib").suffix
     '.png'
     """
+    target = Path(os.fspath(path))
+    if target.suffix.lower() != ".png":
+        raise ValueError(f"{target}: pictures are written as PNG, so the path must end in .png")
+    width, height = (int(s) for s in size)
+    if width < 300 or height < 150:
+        raise ValueError(f"size must be at least 300 x 150 pixels, got {size!r}")
+    return _draw_extraction(_ExtractionSlices.of(_as_volume(volume), extraction), extraction, target,
+                            title=title, width=width, height=height, backend=backend)
+
+
+@dataclass(frozen=True)
+class _ExtractionSlices:
+    """What the picture needs of the volume: two slices through the product's centre, and the voxel size.
+
+    Taken before the picture is drawn, so that a batch can let the volume go
+    first (its renderer's libraries take a few hundred megabytes of their own).
+    """
+
+    panels: tuple  # (axis, index, picture (along the other two axes) float32)
+    index_vertices: np.ndarray  # the surface's vertices in voxel indices
+    spacing: np.ndarray
+
+    @classmethod
+    def of(cls, vol: Volume, extraction: Extraction) -> "_ExtractionSlices":
+        centre = extraction.bounds.mean(axis=1)
+        panels = []
+        for axis in (2, 1):  # across the last index axis, then the second
+            k = int(np.clip(int(round(centre[axis])), 0, vol.shape[axis] - 1))
+            # indexing, a view: np.take copies element by element along a strided axis (3 s on 512^3)
+            panels.append((axis, k, vol.data[(slice(None),) * axis + (k,)].astype(np.float32)))
+        return cls(tuple(panels), vol.world_to_index(extraction.mesh.vertices), np.asarray(vol.spacing, float))
+
+
+def _draw_extraction(slices: _ExtractionSlices, extraction: Extraction, target: Path, *, title, width: int,
+                     height: int, backend: str) -> Path:
+    """:func:`render_extraction` from the slices it needs."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.collections import LineCollection
     from matplotlib.figure import Figure
@@ -1659,25 +1814,18 @@ def render_extraction(volume, extraction: Extraction, path, *, title: str | None
 
     from .render import render_mesh
 
-    vol = _as_volume(volume)
-    target = Path(os.fspath(path))
-    if target.suffix.lower() != ".png":
-        raise ValueError(f"{target}: pictures are written as PNG, so the path must end in .png")
-    width, height = (int(s) for s in size)
-    if width < 300 or height < 150:
-        raise ValueError(f"size must be at least 300 x 150 pixels, got {size!r}")
     mesh = extraction.mesh
     with tempfile.TemporaryDirectory() as tmp:
-        render_mesh(mesh, Path(tmp) / "surface.png", view="iso", size=(height, height), backend=backend)
+        render_mesh(_picture_surface(mesh), Path(tmp) / "surface.png", view="iso", size=(height, height),
+                    backend=backend)
         surface = np.asarray(Image.open(Path(tmp) / "surface.png").convert("RGB"))
-    index = vol.world_to_index(mesh.vertices)
-    centre = extraction.bounds.mean(axis=1)
+    index = slices.index_vertices
     lv = extraction.levels
     contrast = lv.foreground - lv.background
     vmin, vmax = lv.background - 0.2 * contrast, lv.foreground + 0.2 * contrast
     if vmin > vmax:
         vmin, vmax = vmax, vmin
-    sx, sy, sz = vol.spacing
+    sx, sy, sz = slices.spacing
     dpi = 100.0
     fig = Figure(figsize=(width / dpi, height / dpi), dpi=dpi, facecolor="white")
     canvas = FigureCanvasAgg(fig)
@@ -1690,14 +1838,9 @@ def render_extraction(volume, extraction: Extraction, path, *, title: str | None
     ax.imshow(surface)
     ax.set_axis_off()
     ax.set_title(f"surface: {mesh.n_vertices:,} vertices, {extraction.volume / 1000:.1f} mL", fontsize=10)
-    panels = (
-        (2, int(round(centre[2])), (0, 1), (sx, sy), "x", "y"),
-        (1, int(round(centre[1])), (0, 2), (sx, sz), "x", "z"),
-    )
+    panels = (((0, 1), (sx, sy), "x", "y"), ((0, 2), (sx, sz), "x", "z"))
     room = 1.0 - height / width
-    for i, (axis, k, (a0, a1), (s0, s1), n0, n1) in enumerate(panels):
-        k = int(np.clip(k, 0, vol.shape[axis] - 1))
-        picture = np.take(vol.data, k, axis=axis).astype(np.float32)  # [a0, a1]
+    for i, ((axis, k, picture), ((a0, a1), (s0, s1), n0, n1)) in enumerate(zip(slices.panels, panels)):
         left = height / width + room * (0.08 + 0.5 * i)
         ax = fig.add_axes((left, 0.1 + foot, room * 0.4, top - 0.14 - foot))
         extent = (-0.5 * s0, (picture.shape[0] - 0.5) * s0, -0.5 * s1, (picture.shape[1] - 0.5) * s1)
@@ -1925,10 +2068,12 @@ def extract_file(source, out_dir, *, level: float | None = None, smoothing: int 
                                   name=str(source))
         units = {**_check_extent(ext.mesh.vertices, vol.spacing, source).as_log(), "spacing_mm": vol.spacing.tolist()}
         seconds = time.perf_counter() - start
+        slices = _ExtractionSlices.of(vol, ext) if picture else None
+        del vol  # before the picture's libraries arrive
         write_mesh(ply, ext.mesh)
         if picture:
-            render_extraction(vol, ext, png, title=source.name)
-        del vol
+            _draw_extraction(slices, ext, png, title=source.name, width=_PICTURE_SIZE[0], height=_PICTURE_SIZE[1],
+                             backend="auto")
         log = {
             "source": str(source),
             "source_sha256": digest,

@@ -48,6 +48,9 @@ __all__ = [
 # ----------------------------------------------------------------------------
 
 
+_FACE_BLOCK = 1 << 16  # faces per block where a whole surface's temporaries would be large
+
+
 def _face_cross(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     v0 = vertices[faces[:, 0]]
     return np.cross(vertices[faces[:, 1]] - v0, vertices[faces[:, 2]] - v0)
@@ -169,11 +172,21 @@ def mean_edge_length(mesh: Mesh) -> float:
 
 
 def signed_volume(vertices, faces) -> float:
-    """Signed enclosed volume (positive when the faces wind outward)."""
+    """Signed enclosed volume (positive when the faces wind outward).
+
+    Summed over blocks of faces, so that a million-face surface needs a few
+    megabytes beside itself, not the corners of every face at once.
+    """
     v = np.asarray(vertices, dtype=np.float64)
-    f = np.asarray(faces, dtype=np.int64)
-    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
-    return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
+    f = np.asarray(faces)
+    if f.dtype.kind not in "iu":
+        f = f.astype(np.int64)
+    total = 0.0
+    for i in range(0, len(f), _FACE_BLOCK):
+        part = f[i : i + _FACE_BLOCK]
+        a, b, c = v[part[:, 0]], v[part[:, 1]], v[part[:, 2]]
+        total += float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum())
+    return total / 6.0
 
 
 # ----------------------------------------------------------------------------
@@ -206,8 +219,9 @@ def component_labels(faces, n_vertices: int) -> tuple[int, np.ndarray]:
     f = np.asarray(faces)
     n = int(n_vertices)
     index = np.int32 if n < 2**31 - 1 else np.int64
+    # two edges of each face join its three corners; the third adds nothing
     graph = sp.csr_matrix(
-        (np.ones(f.size, dtype=np.int8), (f.astype(index).ravel(), f[:, [1, 2, 0]].astype(index).ravel())),
+        (np.ones(2 * len(f), dtype=np.int8), (np.repeat(f[:, 0].astype(index), 2), f[:, 1:].astype(index).ravel())),
         shape=(n, n),
     )
     n_comp, labels = connected_components(graph, directed=False)
@@ -270,7 +284,13 @@ def checked_surface(mesh: Mesh, *, name: str = "mesh", allow_degenerate: bool = 
     >>> sign, [len(lp) for lp in loops]
     (1.0, [3])
     """
-    v, f = mesh.vertices, mesh.faces
+    return _checked_arrays(mesh.vertices, mesh.faces, name=name, allow_degenerate=allow_degenerate,
+                           allow_holes=allow_holes)
+
+
+def _checked_arrays(v: np.ndarray, f: np.ndarray, *, name: str, allow_degenerate: bool,
+                    allow_holes: bool) -> tuple[float, list[np.ndarray]]:
+    """:func:`checked_surface` on a mesh's arrays (int32 or int64 faces), before a :class:`Mesh` copies them."""
     n = len(v)
 
     def sorted_keys(a: int, b: int) -> np.ndarray:
@@ -279,31 +299,64 @@ def checked_surface(mesh: Mesh, *, name: str = "mesh", allow_degenerate: bool = 
         Built in one array, in place: a million-vertex surface (e.g. from a
         large CT volume) needs a third of the memory of column copies.
         """
-        key = f * n
+        key = f.astype(np.int64) * n
         for k in range(3):
             key[:, (a + k) % 3] += f[:, (b + k) % 3]
         key = key.ravel()
         key.sort()
         return key
 
-    # sort-based tests (np.unique / np.isin are several times slower here):
-    # a closed, consistently oriented manifold uses each directed edge once
-    # and its reverse exactly once, so the two sorted key lists are identical
-    key = sorted_keys(0, 1)
-    if (key[1:] == key[:-1]).any():
-        raise MeshError(
-            f"{name}: the surface is non-manifold or inconsistently oriented "
-            "(a directed edge is used by two faces)"
-        )
-    reverse = sorted_keys(1, 0)
-    closed = np.array_equal(key, reverse)
-    if not allow_holes and not closed:
-        n_open = int((~np.isin(reverse, key)).sum())
-        raise MeshError(
-            f"{name}: the surface is not closed ({n_open} boundary edges); "
-            "registration needs a watertight surface (fill the holes first)"
-        )
-    del key, reverse
+    def edge_pairs() -> bool:
+        """Whether every edge is used once in each direction and by no other face (one sorted array).
+
+        Each directed edge's key is its undirected edge (lower vertex * n +
+        higher) times two, plus one when it runs upward: on a closed,
+        consistently oriented manifold the sorted keys come in pairs ``2e,
+        2e + 1``, each edge ``e`` in one pair. Half the memory of the two key
+        lists below, which say what is wrong when this fails.
+        """
+        if len(f) == 0 or n >= 2**30:  # keys up to 2 n^2 must fit in int64
+            return False
+        key = np.empty(f.shape, dtype=np.int64)
+        for k in range(3):
+            a, b = f[:, k], f[:, (k + 1) % 3]
+            col = key[:, k]
+            np.minimum(a, b, out=col)
+            col *= n
+            col += np.maximum(a, b)
+            col *= 2
+            col += a < b
+        key = key.ravel()
+        key.sort()
+        if len(key) % 2:
+            return False
+        pairs = key.reshape(-1, 2)
+        for i in range(0, len(pairs), _FACE_BLOCK):  # in blocks: no temporary as long as the keys
+            p = pairs[i : i + _FACE_BLOCK]
+            if not ((p[:, 0] % 2 == 0).all() and (p[:, 1] - p[:, 0] == 1).all()):
+                return False
+        return bool((pairs[1:, 0] > pairs[:-1, 1]).all())
+
+    closed = edge_pairs()
+    if not closed:
+        # sort-based tests (np.unique / np.isin are several times slower here):
+        # a closed, consistently oriented manifold uses each directed edge once
+        # and its reverse exactly once, so the two sorted key lists are identical
+        key = sorted_keys(0, 1)
+        if (key[1:] == key[:-1]).any():
+            raise MeshError(
+                f"{name}: the surface is non-manifold or inconsistently oriented "
+                "(a directed edge is used by two faces)"
+            )
+        reverse = sorted_keys(1, 0)
+        closed = np.array_equal(key, reverse)
+        if not allow_holes and not closed:
+            n_open = int((~np.isin(reverse, key)).sum())
+            raise MeshError(
+                f"{name}: the surface is not closed ({n_open} boundary edges); "
+                "registration needs a watertight surface (fill the holes first)"
+            )
+        del key, reverse
     used = np.zeros(n, dtype=bool)
     used[f.ravel()] = True
     if not used.all():
@@ -316,8 +369,8 @@ def checked_surface(mesh: Mesh, *, name: str = "mesh", allow_degenerate: bool = 
             f"(vertex counts {sorted(sizes.tolist(), reverse=True)[:5]}); "
             "keep only the fruit's outer surface"
         )
-    area = face_areas(v, f)
     if not allow_degenerate:
+        area = face_areas(v, f)
         # relative threshold: units do not matter
         bad = area <= 1e-12 * max(float(area.mean()), np.finfo(float).tiny)
         if bad.any():

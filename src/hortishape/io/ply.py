@@ -267,6 +267,9 @@ def _read_ply(path: Path) -> _RawMesh:
     return _RawMesh(vertices, faces, colors, scalars)
 
 
+_WRITE_BLOCK = 1 << 16  # vertices or faces per block of a binary file
+
+
 def _write_ply(path: Path, vertices, faces, colors, scalars, binary: bool) -> None:
     n, m = len(vertices), len(faces)
     columns: list[tuple[str, str, np.ndarray]] = [
@@ -292,14 +295,19 @@ def _write_ply(path: Path, vertices, faces, colors, scalars, binary: bool) -> No
     with open(path, "wb") as fh:
         fh.write(header.encode("ascii"))
         if binary:
-            records = np.empty(n, dtype=[(name, "<" + code) for name, code, _ in columns])
-            for name, _, values in columns:
-                records[name] = values
-            fh.write(records.tobytes())
-            tris = np.empty(m, dtype=[("n", "u1"), ("i", "<i4" if index == "int" else "<u4", (3,))])
-            tris["n"] = 3
-            tris["i"] = faces
-            fh.write(tris.tobytes())
+            # in blocks: a million-vertex surface (a large CT volume's) without a copy of itself
+            vertex_type = np.dtype([(name, "<" + code) for name, code, _ in columns])
+            for i in range(0, n, _WRITE_BLOCK):
+                records = np.empty(min(_WRITE_BLOCK, n - i), dtype=vertex_type)
+                for name, _, values in columns:
+                    records[name] = values[i : i + len(records)]
+                fh.write(records.view(np.uint8))
+            face_type = np.dtype([("n", "u1"), ("i", "<i4" if index == "int" else "<u4", (3,))])
+            for i in range(0, m, _WRITE_BLOCK):
+                tris = np.empty(min(_WRITE_BLOCK, m - i), dtype=face_type)
+                tris["n"] = 3
+                tris["i"] = faces[i : i + len(tris)]
+                fh.write(tris.view(np.uint8))
         else:
             line = " ".join("%r" if code == "f8" else "%d" for _, code, _ in columns) + "\n"
             cols = [
