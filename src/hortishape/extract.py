@@ -704,7 +704,7 @@ class _Components:
         return lo, hi
 
     def labels(self, k: int) -> np.ndarray:
-        """The local labels of slab ``k`` (stored, or computed again)."""
+        """The local labels of slab ``k``."""
         return self.stored[k].array()
 
     def select(self, k: int, chosen: np.ndarray, *, labels: np.ndarray | None = None) -> np.ndarray:
@@ -1376,7 +1376,7 @@ def _march(vol: Volume, data, iso: float, seg: _Segmentation, inside_value: floa
     lowered to ``outside_value``, on the product's box plus a background
     layer all around, so that the surface closes where the product touches
     the volume's border. Returns ``(index_vertices (n, 3) along x, y, z,
-    faces (m, 3) int64)``.
+    faces (m, 3) int32)`` (see :func:`_weld`).
     """
     from skimage.measure import marching_cubes
 
@@ -1442,8 +1442,9 @@ def _mesh_product(vol: Volume, iso: float, inside_value: float, outside_value: f
     The gap widths are tried in turn (:func:`_segment`) until the product is
     one solid of genus 0 that encloses no other piece; the last is kept
     otherwise. Returns ``(index_vertices (n, 3) float64 along x, y, z,
-    faces (m, 3) int64, bounds, the segmentation, the attempts)``. Only the
-    attempt at hand keeps its labels (as runs, :class:`_Runs`).
+    faces (m, 3) int32 (int64 past 2^31 vertices), bounds, the segmentation,
+    the attempts)``. Only the attempt at hand keeps its labels (as runs,
+    :class:`_Runs`).
     """
     # (z, y, x) view: slabs along the volume's last axis are contiguous in memory
     # for volumes read from files (x varies fastest on disk).
@@ -1685,7 +1686,7 @@ def _slice_segments(index_vertices: np.ndarray, faces: np.ndarray, axis: int, po
 
 
 _PICTURE_VERTICES = 150_000  # more than a 520-pixel picture shows
-_PICTURE_SIZE = (1500, 520)  # render_extraction's default, width and height in pixels
+_PICTURE_SIZE = (1500, 520)  # the picture's width and height in pixels
 
 
 def _picture_surface(mesh: Mesh) -> Mesh:
@@ -1734,7 +1735,7 @@ def _picture_surface(mesh: Mesh) -> Mesh:
 
 
 def render_extraction(volume, extraction: Extraction, path, *, title: str | None = None,
-                      size: tuple[int, int] = (1500, 520), backend: str = "auto") -> Path:
+                      size: tuple[int, int] = _PICTURE_SIZE, backend: str = "auto") -> Path:
     """Picture of an extracted surface beside two slices of its volume, for checking by eye.
 
     Left: the surface (iso view). Middle and right: the slices of the volume
