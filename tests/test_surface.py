@@ -128,8 +128,6 @@ def test_several_holes_and_holes_that_touch():
 
 
 def test_int32_faces_of_a_large_open_surface_name_its_holes():
-    import trimesh
-
     from hortishape.surface import _checked_arrays
 
     # 163,842 vertices: an edge key (vertex * n + vertex) overflows int32
