@@ -1698,14 +1698,13 @@ def _picture_surface(mesh: Mesh) -> Mesh:
     drawn, they would show as dark seams. Fast and good enough to look at (not
     a surface to measure).
     """
-    from .surface import _face_cross
+    from .surface import _FACE_BLOCK as block
+    from .surface import _face_cross, face_areas
 
     if mesh.n_vertices <= _PICTURE_VERTICES:
         return mesh
     v, f = mesh.vertices, mesh.faces
-    block = 1 << 18
-    area = sum(0.5 * float(np.linalg.norm(_face_cross(v, f[i : i + block]), axis=1).sum())
-               for i in range(0, len(f), block))
+    area = sum(float(face_areas(v, f[i : i + block]).sum()) for i in range(0, len(f), block))
     cell = math.sqrt(area / _PICTURE_VERTICES)
     grid = np.floor((v - v.min(axis=0)) / cell).astype(np.int64)
     dims = grid.max(axis=0) + 1
