@@ -637,6 +637,93 @@ def test_a_narrow_channel_to_the_core_is_closed_over():
     assert ext.volume == pytest.approx(4 / 3 * np.pi * 25.0**3, rel=0.01)  # the core filled
 
 
+def test_a_peel_broken_into_pieces_around_the_flesh_is_closed():
+    # a thin peel that the slices break up (here: into octants, 2 voxels apart) over a dark
+    # rind and bright flesh: the flesh alone is one solid of genus 0 and the largest piece,
+    # but the peel's pieces together lie beyond it on every side
+    n = 64
+    x, y, z = grid(n) - (n - 1) / 2.0
+    d = np.sqrt(x**2 + y**2 + z**2) - 24.0
+
+    def inside(v):
+        return 0.5 * (1.0 - erf(v / (0.7 * np.sqrt(2.0))))
+
+    values = 40.0 * inside(d) - 30.0 * inside(d + 2.0) + 70.0 * inside(d + 5.0)
+    cuts = np.minimum(np.minimum(np.abs(x), np.abs(y)), np.abs(z)) <= 0.5
+    values[cuts & (d > -2.5)] = 0.0
+    with pytest.warns(ExtractionWarning, match="open shell"):
+        ext = extract_surface(values.astype(np.float32), level=20.0)
+    assert ext.attempts[0]["genus"] == 0 and ext.attempts[0]["enclosed"]
+    assert ext.genus == 0 and ext.gap_mm == 2.0
+    # the peel's outer edge (radius 24), not the flesh's (19: 0.50 of the volume)
+    assert ext.volume == pytest.approx(4 / 3 * np.pi * 24.0**3, rel=0.01)
+
+
+def test_gaps_closed_next_to_the_border_leave_no_cap():
+    # the channel of test_a_narrow_channel_to_the_core_is_closed_over, 5 mm wide, with the
+    # ball's top 1.5 mm from the volume's last plane: the box that closes the channel is
+    # wider than that gap, but beyond the border is air, so the gap stays outside
+    n = 64
+    x, y, z = grid(n) - np.array([31.5, 31.5, 36.5])[:, None, None, None]
+    r = np.sqrt(x**2 + y**2 + z**2)
+    channel = np.where(z > 0, 2.6 - np.hypot(x, y), -np.inf)
+    with pytest.warns(ExtractionWarning, match="gaps up to 4 mm wide were closed") as caught:
+        ext = extract_surface(ct(np.maximum(r - 25.0, np.maximum(6.0 - r, channel))))
+    assert ext.genus == 0 and ext.gap_mm == 4.0
+    assert ext.mesh.vertices[:, 2].max() == pytest.approx(61.5, abs=0.2)  # was 63.6: a cap to the border
+    assert not any("border" in str(w.message) for w in caught)
+    assert ext.volume == pytest.approx(4 / 3 * np.pi * 25.0**3, rel=0.005)
+
+
+def _thin_peel_ball(seed=0, radius=20.0, peel=0.5, rind=3.0, core=4.0, pixel=0.5, slice_mm=2.0):
+    """An MRI-like ball (mm) in slices four times as thick as its pixels, 48 mm across: a bright
+    peel ``peel`` thick (thinner than a slice) over a dark rind, bright flesh around a dark core
+    that runs from pole to pole. Partial volume from 2 x 2 x 4 points per voxel, Rician noise."""
+    n_xy, n_z = int(round(48 / pixel)), int(round(48 / slice_mm))
+    sub = (2, 2, 4)
+    axes = [(np.arange(n)[:, None] + (np.arange(k) + 0.5) / k).ravel() * h - 24.0
+            for n, k, h in ((n_xy, sub[0], pixel), (n_xy, sub[1], pixel), (n_z, sub[2], slice_mm))]
+    x, y, z = np.meshgrid(*axes, indexing="ij")
+    d = np.sqrt(x**2 + y**2 + z**2) - radius
+    v = np.where(d <= 0, 90.0, 3.0)
+    v[d <= -peel] = 8.0
+    v[(d <= -peel - rind) & (np.hypot(x, y) >= core)] = 80.0
+    v = v.reshape(n_xy, sub[0], n_xy, sub[1], n_z, sub[2]).mean(axis=(1, 3, 5))
+    rng = np.random.default_rng(seed)
+    v = np.hypot(v + rng.normal(0, 2.0, v.shape), rng.normal(0, 2.0, v.shape))
+    return Volume(np.clip(np.rint(v), 0, 255).astype(np.uint8), spacing=(pixel, pixel, slice_mm))
+
+
+def test_a_peel_thinner_than_a_slice_is_kept_whole_at_the_poles():
+    # in-plane the peel is resolved and sets the level; across the slices it fills a share
+    # of one and stays below that level: the poles open into the core, and no gap width
+    # closes them (before: the product grew into the background, "touches all six faces")
+    vol = _thin_peel_ball()
+    with pytest.warns(ExtractionWarning, match="thinner than a slice"):
+        ext = extract_surface(vol)
+    lv = ext.levels
+    assert lv.segment < lv.level and lv.slice_outer < lv.level
+    assert "thinner than a slice" in lv.explain()
+    assert ext.attempts[-1]["level"] < lv.level  # what is inside, decided at the lower level
+    assert ext.attempts[0]["level"] > lv.level - 1  # after the level alone was tried
+    assert ext.genus == 0 and ext.gap_mm <= 2.0
+    check_closed_surface(ext.mesh)
+    assert ext.volume == pytest.approx(4 / 3 * np.pi * 20.0**3, rel=0.015)
+    centre = 24.0 - 0.5 * vol.spacing  # voxel i spans [i, i + 1) spacings, its centre at i
+    radial = np.linalg.norm(ext.mesh.vertices - centre, axis=1)
+    assert np.abs(radial - 20.0).mean() < 0.3  # mm; the slices are 2 mm
+
+
+def test_a_peel_as_thick_as_a_slice_is_segmented_at_the_level():
+    vol = _thin_peel_ball(peel=2.5, slice_mm=1.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ExtractionWarning)
+        ext = extract_surface(vol)
+    assert ext.levels.segment == ext.levels.level
+    assert all(a["level"] == ext.attempts[0]["level"] for a in ext.attempts)
+    assert ext.volume == pytest.approx(4 / 3 * np.pi * 20.0**3, rel=0.01)
+
+
 def test_slab_labels_come_back_as_they_were_kept():
     from hortishape.extract import _Runs
 

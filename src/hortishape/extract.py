@@ -19,7 +19,11 @@ millimetres, the kind of scan the rest of hortishape works on:
    layers (blurred steps, and the noise floor of a magnitude image) fitted
    to the rays' profile across the edge: it holds on a peel too thin to
    reach its full brightness, and is not lifted by MRI's magnitude noise in
-   the background.
+   the background. Across thick slices a peel thinner than a slice fills
+   only a share of one and can stay below that level at the poles; rays
+   along the slices' axis measure how bright it gets there
+   (``slice_outer``), and a lower level half-way to it
+   (``segment_level``) is kept in reserve for step 2.
 2. **The product, by construction.** Outside is every voxel at or below the
    level that can be reached from the volume's border through such voxels;
    the solid is everything else, so a pepper's hollow, an apple's core and
@@ -30,8 +34,13 @@ millimetres, the kind of scan the rest of hortishape works on:
    reached by a box of 1, 2, 4, 8 mm (:data:`GAPS_MM`, a morphological
    opening of the free voxels), which cannot pass gaps narrower than it,
    until the product is one solid of genus 0 (its Euler number, counted
-   slab by slab) around no other piece. The largest 6-connected piece of the
-   solid is the product. When it touches the border of the volume (a
+   slab by slab) around no other piece, nor inside other pieces that
+   together lie beyond it on every side (a peel broken into pieces). Beyond
+   the volume is air: a box may stand partly outside it, so a fruit that
+   nearly fills the field of view gets no cap out to the border. If no box
+   closes the product, or only one wider than 2 mm, the solid is found
+   again at the lower level of step 1 and kept when it closes with narrower
+   gaps. The largest 6-connected piece of the solid is the product. When it touches the border of the volume (a
    scanner bed or a support does, the product normally does not), it is
    eroded by ``support_radius``: parts that then come apart from the product
    and reach the border are dropped as a support. A support thinner than
@@ -41,8 +50,11 @@ millimetres, the kind of scan the rest of hortishape works on:
 3. **Marching cubes** (Lewiner) on the *intensity*, not on the mask, which is
    what gives sub-voxel accuracy: inside the product the intensity is raised
    above the level where it is below, outside the product every voxel above
-   the level is lowered below it, and every other voxel keeps its value. The
-   surface is therefore exactly the outer boundary of the product, one
+   the level is lowered below it, and every other voxel keeps its value
+   (found at the lower level, the product's voxels between the two levels
+   that face the outside with no voxel above the level beside them are
+   stretched so that the surface crosses them where it would at the lower
+   level). The surface is therefore exactly the outer boundary of the product, one
    closed component, in world coordinates (``origin + direction @ (spacing *
    index)``), with outward normals.
 4. Optionally, **Taubin smoothing** (:func:`taubin_smooth`, a low-pass
@@ -181,6 +193,16 @@ OUTER_MIN_RAYS = 50
 #: A surface smaller or larger across than this (mm) is warned about (the
 #: size check refuses outside :data:`hortishape.units.PLAUSIBLE_EXTENT_MM`).
 FRUIT_EXTENT_MM = (10.0, 600.0)
+#: Across the slices (the coarsest axis, at least ``SLICE_ANISOTROPY`` times the finest),
+#: the ``SLICE_QUANTILE`` of the outermost tissue's peaks; where ``SLICE_SHARE`` of the way
+#: to it from the background is below the level, what is inside is decided there instead
+#: (no lower than the rays' detection level): a thin peel stays whole at the poles.
+SLICE_ANISOTROPY = 1.25
+SLICE_QUANTILE = 0.1
+SLICE_SHARE = 0.5
+#: That lower level is tried only when the level's own product is not closed with gaps
+#: up to this width (mm), and kept when it closes with narrower gaps.
+SLICE_GAP_MM = 2.0
 
 
 # --------------------------------------------------------------------------
@@ -213,6 +235,17 @@ class IntensityLevels:
         ``"outer"`` (the outermost tissue differs from the main one, a peel
         in MRI: the value on its outer boundary, from a model of the layers
         fitted to the rays' profile across the edge) or ``"given"``.
+    segment_level : float
+        The level that decides what is inside (the product's voxels, the
+        gaps to close): ``level``, or lower where the outermost tissue,
+        seen along the volume's coarsest axis, stays below ``level`` (a
+        peel thinner than a slice: ``slice_outer``). The surface is meshed
+        at ``level`` wherever the voxels reach it, and between the two
+        levels only where they do not. NaN: ``level``.
+    slice_outer : float
+        The outermost tissue's brightness along the coarsest axis (the 10th
+        percentile of the rays' peaks), when it set ``segment_level``; NaN
+        otherwise.
     """
 
     background: float
@@ -221,17 +254,29 @@ class IntensityLevels:
     level: float
     outer: float = float("nan")
     method: str = "peaks"
+    segment_level: float = float("nan")
+    slice_outer: float = float("nan")
+
+    @property
+    def segment(self) -> float:
+        """The level that decides what is inside: ``segment_level``, or ``level``."""
+        return self.segment_level if math.isfinite(self.segment_level) else self.level
 
     def explain(self) -> str:
         """One sentence on how the level was chosen, for logs and pictures."""
         if self.method == "given":
             return f"level {self.level:g} (given)"
         if self.method == "outer":
-            return (f"level {self.level:.4g}: on the outer edge of the outermost tissue ({self.outer:.4g}, "
+            text = (f"level {self.level:.4g}: on the outer edge of the outermost tissue ({self.outer:.4g}, "
                     f"which differs from the main tissue, {self.foreground:.4g}), fitted to rays from "
                     f"the background ({self.background:.4g})")
-        return (f"level {self.level:.4g}: half-way between the background ({self.background:.4g}) and "
-                f"the product ({self.foreground:.4g})")
+        else:
+            text = (f"level {self.level:.4g}: half-way between the background ({self.background:.4g}) and "
+                    f"the product ({self.foreground:.4g})")
+        if self.segment < self.level:
+            text += (f"; inside from {self.segment:.4g}: across the slices the outermost tissue "
+                     f"reaches only {self.slice_outer:.4g} (thinner than a slice)")
+        return text
 
 
 def _as_volume(volume) -> Volume:
@@ -357,11 +402,17 @@ def intensity_levels(volume, *, level: float | None = None, name: str = "volume"
         # is at least twice as thick as the blur: a fit above that is one a coarse
         # profile could not fix (a thin peel's brightness and thickness trade off)
         top = bg + OUTER_MAX_SHARE * (outer - bg)
-        level = min(fitted, top) if math.isfinite(fitted) else edge
-        return IntensityLevels(background=bg, foreground=fg, threshold=threshold, level=level, outer=outer,
-                               method="outer")
-    return IntensityLevels(background=bg, foreground=fg, threshold=threshold, level=0.5 * (bg + fg),
-                           outer=outer, method="peaks")
+        level, method = (min(fitted, top) if math.isfinite(fitted) else edge), "outer"
+    else:
+        level, method = 0.5 * (bg + fg), "peaks"
+    segment, across = level, float("nan")
+    if fg > bg:
+        detect = _detect_level(bg, fg, noise)
+        peak = _slice_outer(vol, detect)
+        if math.isfinite(peak) and max(detect, bg + SLICE_SHARE * (peak - bg)) < level:
+            segment, across = max(detect, bg + SLICE_SHARE * (peak - bg)), peak
+    return IntensityLevels(background=bg, foreground=fg, threshold=threshold, level=level, outer=outer,
+                           method=method, segment_level=segment, slice_outer=across)
 
 
 def _along_normal(data: np.ndarray, spacing: np.ndarray, place: np.ndarray, axis: int) -> np.ndarray:
@@ -378,6 +429,21 @@ def _along_normal(data: np.ndarray, spacing: np.ndarray, place: np.ndarray, axis
         grad[inner, a] = (data[tuple(up.T)].astype(np.float64) - data[tuple(down.T)]) / spacing[a]
     norm = np.linalg.norm(grad, axis=1)
     return inner & (np.abs(grad[:, axis]) >= math.cos(math.radians(OUTER_ANGLE)) * norm) & (norm > 0)
+
+
+def _sampled_rows(data: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray]:
+    """About ``OUTER_ROWS`` rows of voxels along ``axis`` (float32, one per row of the result) and
+    each row's place along the other two axes."""
+    n = data.shape[axis]
+    others = [a for a in range(3) if a != axis]
+    stride = max(1, math.ceil(math.sqrt(data.shape[others[0]] * data.shape[others[1]] / OUTER_ROWS)))
+    index = [slice(None)] * 3
+    for a in others:
+        index[a] = slice(None, None, stride)
+    rows = np.moveaxis(np.asarray(data[tuple(index)]), axis, -1).reshape(-1, n).astype(np.float32)
+    across = np.stack(np.meshgrid(*(np.arange(0, data.shape[a], stride) for a in others), indexing="ij"),
+                      axis=-1).reshape(-1, 2)
+    return rows, across
 
 
 def _outer_intensity(vol: Volume, background: float, foreground: float, noise: float):
@@ -397,20 +463,12 @@ def _outer_intensity(vol: Volume, background: float, foreground: float, noise: f
     if foreground <= background:
         return float("nan"), float("nan"), []
     data = vol.data
-    detect = background + max(OUTER_DETECT * (foreground - background), OUTER_NOISE * noise)
+    detect = _detect_level(background, foreground, noise)
     maxima, edges, rays = [], [], []
     for axis in np.argsort(vol.spacing, kind="stable")[:2]:
         n = data.shape[axis]
         others = [a for a in range(3) if a != axis]
-        n_rows = data.shape[others[0]] * data.shape[others[1]]
-        stride = max(1, math.ceil(math.sqrt(n_rows / OUTER_ROWS)))
-        index = [slice(None)] * 3
-        for a in others:
-            index[a] = slice(None, None, stride)
-        rows = np.moveaxis(np.asarray(data[tuple(index)]), axis, -1).reshape(-1, n).astype(np.float32)
-        # each row's place along the other two axes
-        across = np.stack(np.meshgrid(*(np.arange(0, data.shape[a], stride) for a in others), indexing="ij"),
-                          axis=-1).reshape(-1, 2)
+        rows, across = _sampled_rows(data, axis)
         window = max(3, math.ceil(OUTER_WINDOW_MM / float(vol.spacing[axis])))
         if n < window + 3:
             continue
@@ -447,6 +505,48 @@ def _outer_intensity(vol: Volume, background: float, foreground: float, noise: f
     if not maxima or sum(map(len, maxima)) < OUTER_MIN_RAYS:
         return float("nan"), float("nan"), []
     return float(np.median(np.concatenate(maxima))), float(np.median(np.concatenate(edges))), rays
+
+
+def _detect_level(background: float, foreground: float, noise: float) -> float:
+    """The intensity above which a ray from outside has met the product, clear of the noise."""
+    return background + max(OUTER_DETECT * (foreground - background), OUTER_NOISE * noise)
+
+
+def _slice_outer(vol: Volume, detect: float) -> float:
+    """The outermost tissue's brightness across the slices: the ``SLICE_QUANTILE`` of the peaks
+    that rays along the volume's coarsest axis meet within ``OUTER_WINDOW_MM`` of the first voxel
+    above ``detect``, over the rays that cross the surface nearly square. A peel thinner than a
+    slice fills none of them: its peak there is a share of its brightness, and lower where it
+    straddles two slices. NaN when the volume's voxels are cubes or too few rays are left.
+    """
+    spacing = np.asarray(vol.spacing, dtype=np.float64)
+    axis = int(np.argmax(spacing))
+    if spacing[axis] < SLICE_ANISOTROPY * spacing.min():
+        return float("nan")
+    data = vol.data
+    n = data.shape[axis]
+    others = [a for a in range(3) if a != axis]
+    rows, across = _sampled_rows(data, axis)
+    window = max(2, math.ceil(OUTER_WINDOW_MM / float(spacing[axis])))
+    peaks = []
+    for backwards in (False, True):
+        r = rows[:, ::-1] if backwards else rows
+        high = r > detect
+        first = high.argmax(axis=1)  # one voxel: a thin peel may fill no two in a row
+        ok = high.any(axis=1) & (first >= 2) & (first + window < n)
+        if not ok.any():
+            continue
+        # the direction at the voxel before the hit: across a peel one voxel thick the
+        # intensity falls again, and its own gradient points anywhere
+        place = np.full((len(r), 3), -1)
+        place[:, axis] = np.where(backwards, n - first, first - 1)
+        place[:, others[0]], place[:, others[1]] = across[:, 0], across[:, 1]
+        ok &= _along_normal(data, spacing, place, axis)
+        at = first[ok, None] + np.arange(window)[None, :]
+        peaks.append(np.take_along_axis(r[ok], at, axis=1).max(axis=1))
+    if not peaks or sum(map(len, peaks)) < OUTER_MIN_RAYS:
+        return float("nan")
+    return float(np.quantile(np.concatenate(peaks), SLICE_QUANTILE))
 
 
 def _edge_profile(rays, level: float):
@@ -1134,20 +1234,33 @@ def _opened_free(data: np.ndarray, iso: float, z0: int, z1: int, box) -> np.ndar
 
     A morphological opening of the free (below-level) voxels by a box of
     ``box`` = (bz, by, bx) voxels (odd sizes): an erosion then a dilation
-    along each axis. Beyond the volume is air, so a box may stick out of it,
-    but it must cover some of the volume. ``box`` (1, 1, 1) gives the free
-    voxels themselves.
+    along each axis. Beyond the volume is air: a box may stand partly
+    outside it, centred up to its half-width beyond the border, so that the
+    outside reaches into a gap between the product and the border narrower
+    than the box (a fruit that fills the field of view). ``box`` (1, 1, 1)
+    gives the free voxels themselves.
     """
     if all(b == 1 for b in box):
         return data[z0:z1] <= iso
-    halo = 2 * (box[0] // 2)
+    rz, ry, rx = (b // 2 for b in box)
+    halo = 2 * rz
     a0, a1 = max(0, z0 - halo), min(data.shape[0], z1 + halo)
-    m = data[a0:a1] <= iso
+    # air beyond the border, one half-width deep, where the volume ends
+    below = rz if a0 == 0 else 0
+    above = rz if a1 == data.shape[0] else 0
+    m = _opened(data[a0:a1] <= iso, box, ((below, above), (ry, ry), (rx, rx)))
+    return m[z0 - a0 : z1 - a0]
+
+
+def _opened(m: np.ndarray, box, air) -> np.ndarray:
+    """Morphological opening of ``m`` by a box of ``box`` voxels (odd sizes), with ``air``
+    (``np.pad``'s widths) of True beyond it: a box may be centred there."""
+    m = np.pad(m, air, constant_values=True)
     for axis, b in enumerate(box):
         m = _sweep(m, b // 2, axis, erode=True)
     for axis, b in enumerate(box):
         m = _sweep(m, b // 2, axis, erode=False)
-    return m[z0 - a0 : z1 - a0]
+    return m[tuple(slice(a, m.shape[i] - b) for i, (a, b) in enumerate(air))]
 
 
 def _sweep(m: np.ndarray, radius: int, axis: int, *, erode: bool) -> np.ndarray:
@@ -1223,6 +1336,7 @@ class _Segmentation:
     pit_mm: float = 0.0  # how deep the outside reaches beyond a big box's reach (NaN: not looked at)
     spacing_zyx: np.ndarray = None
     mesh_genus: int | None = None  # of the marched surface, when it was marched
+    level: float = float("nan")  # that decided what is inside
 
     def closed(self) -> bool:
         """One solid of genus 0, around no other piece, without a narrow channel deep into it."""
@@ -1301,12 +1415,21 @@ def _segment(data, iso: float, spacing_zyx, slabs, *, gap_mm: float, remove_supp
     for c in others[np.argsort(-fg.size[others])][:ENCLOSED_CHECKED]:
         c_lo, c_hi = fg.bounds(np.arange(len(fg.size)) == c)
         enclosed += bool((np.all(c_lo >= lo) and np.all(c_hi <= hi)) or (np.all(c_lo <= lo) and np.all(c_hi >= hi)))
+    if not enclosed:
+        # a shell broken into pieces (a thin peel at an MRI's slice thickness) around
+        # one flesh segment: no piece is around the product, but together they are,
+        # beyond it on every side
+        rest = ~product & (fg.size >= _MIN_OBJECT_VOXELS)
+        if fg.size[rest].sum() >= ENCLOSED_MIN_SHARE * n_solid:
+            u_lo, u_hi = fg.bounds(rest)
+            enclosed += bool(np.all(u_lo < lo) and np.all(u_hi > hi))
     genus = 1 - euler
     # only a product closed otherwise is looked at for a channel (it takes a while)
     pit = (_pit_depth(lambda k: ~fg.select(k, product), slabs, shape, spacing_zyx, lo, hi)
            if genus == 0 and not enclosed else float("nan"))
     return _Segmentation(gap_mm, fg, product, slabs, lo, hi, n_object, n_solid - n_object,
-                         n_support, refused, genus, enclosed, pit, np.asarray(spacing_zyx, dtype=float))
+                         n_support, refused, genus, enclosed, pit, np.asarray(spacing_zyx, dtype=float),
+                         level=float(iso))
 
 
 def _pit_depth(elsewhere, slabs, shape, spacing_zyx, lo, hi) -> float:
@@ -1344,11 +1467,8 @@ def _pit_depth(elsewhere, slabs, shape, spacing_zyx, lo, hi) -> float:
     extent = float(np.min((np.asarray(hi) - np.asarray(lo)) * np.asarray(spacing_zyx)))
     width = min(PIT_BOX_MM, PIT_BOX_SHARE * extent)
     box = tuple(max(1, int(round(width / s))) | 1 for s in sampling)
-    big = every
-    for axis, b in enumerate(box):
-        big = _sweep(big, b // 2, axis, erode=True)
-    for axis, b in enumerate(box):
-        big = _sweep(big, b // 2, axis, erode=False)
+    # as the gap closing's boxes, the big box may stand beyond the volume (air)
+    big = _opened(every, box, [(b // 2, b // 2) for b in box])
     lab, n = ndimage.label(big)
     border = np.zeros(n + 1, dtype=bool)
     for face in (lab[0], lab[-1], lab[:, 0], lab[:, -1], lab[:, :, 0], lab[:, :, -1]):
@@ -1367,16 +1487,21 @@ def _pit_depth(elsewhere, slabs, shape, spacing_zyx, lo, hi) -> float:
     return float(ndimage.distance_transform_edt(~big, sampling=sampling)[deep].max())
 
 
-def _march(vol: Volume, data, iso: float, seg: _Segmentation, inside_value: float, outside_value: float,
-           step: int):
+def _march(vol: Volume, data, iso: float, seg_iso: float, seg: _Segmentation, inside_value: float,
+           outside_value: float, background: float, step: int):
     """Marching cubes of the product's outer surface, slab by slab, in voxel indices.
 
     Runs on the intensity (sub-voxel accuracy) with the product's below-level
     voxels raised to ``inside_value`` and every other voxel above the level
     lowered to ``outside_value``, on the product's box plus a background
     layer all around, so that the surface closes where the product touches
-    the volume's border. Returns ``(index_vertices (n, 3) along x, y, z,
-    faces (m, 3) int32)`` (see :func:`_weld`).
+    the volume's border. In a product segmented at a lower ``seg_iso``, the
+    voxels between the two levels that face the outside keep their values
+    beside a voxel above ``iso`` (an edge the level finds); elsewhere (a
+    thin peel's, across the slices) they are stretched from ``background``
+    so that ``seg_iso`` becomes ``iso``: the surface crosses them where it
+    would at the lower level, not behind them. Returns ``(index_vertices (n, 3) along x, y, z, faces (m, 3) int32)``
+    (see :func:`_weld`).
     """
     from skimage.measure import marching_cubes
 
@@ -1398,13 +1523,25 @@ def _march(vol: Volume, data, iso: float, seg: _Segmentation, inside_value: floa
     # small integers are exact in float32, and an integer volume's level is a
     # half-integer: no voxel value can reach or cross the level
     exact = vol.data.dtype.kind in "biu" and vol.data.dtype.itemsize <= 2 and float(level32) == iso
+    two_levels = seg_iso < iso
+    stretch = (iso - background) / (seg_iso - background) if two_levels else 1.0
     chunks, boundaries = [], []
     nxt = filled(0)
+    before = np.zeros_like(nxt[:1])  # the plane before the box: outside the product
     for k, (z0, z1) in enumerate(box_slabs):
         cur = nxt
         last = k == len(box_slabs) - 1
         nxt = None if last else filled(k + 1)
         inside = cur if last else np.concatenate([cur, nxt[:1]])
+        if two_levels:
+            # the planes either side, for whether each voxel faces the outside
+            after = (np.zeros_like(cur[:1]) if last
+                     else nxt[1:2] if len(nxt) > 1 or k + 2 >= len(box_slabs)
+                     else filled(k + 2)[:1])
+            if not len(after):
+                after = np.zeros_like(cur[:1])
+            walled = _all_neighbours(np.concatenate([before, inside, after]))
+            before = cur[-1:]
         if not inside.any():
             continue
         first_plane = z0 - 1 if k == 0 else z0  # a background plane before the first slab
@@ -1419,7 +1556,22 @@ def _march(vol: Volume, data, iso: float, seg: _Segmentation, inside_value: floa
             # float32 rounding must not move a voxel across the level, nor onto it
             core[high & (core <= level32)] = np.nextafter(level32, np.float32(np.inf))
             core[~high & (core >= level32)] = np.nextafter(level32, np.float32(-np.inf))
-        core[inside & ~high] = inside_value
+        raised = inside & ~high
+        if two_levels:
+            # between the levels and facing the outside. Beside a voxel above the level (an
+            # edge the level finds): kept as they are. Elsewhere (a peel thinner than the
+            # voxel, whose inside the level misses): their values stretched from the
+            # background's, so that the surface crosses them where it would at the lower level
+            facing = raised & (d > seg_iso) & ~walled
+            raised &= ~facing
+            lo_plane, hi_plane = z0 - 1, z0 + len(inside)
+            above = data[max(lo_plane, 0) : min(hi_plane + 1, shape[0]), ys, xs] > iso
+            above = np.concatenate([np.zeros_like(above[:1])] * (lo_plane < 0) + [above]
+                                   + [np.zeros_like(above[:1])] * (hi_plane >= shape[0]))
+            thin = facing & ~_any_neighbour(above)
+            core[thin] = background + (core[thin] - background) * stretch
+            del walled, facing, above, thin
+        core[raised] = inside_value
         core[~inside & high] = outside_value
         del d, high, inside, core
         verts, faces, _, _ = marching_cubes(j, level=float(level32), allow_degenerate=True)
@@ -1432,12 +1584,54 @@ def _march(vol: Volume, data, iso: float, seg: _Segmentation, inside_value: floa
     if not chunks:  # pragma: no cover - the product has voxels above the level
         raise VolumeError(f"no surface found at the level {iso:g}")
     give_back_freed_memory()
-    return _weld(chunks, boundaries)
+    verts, faces = _weld(chunks, boundaries)
+    if two_levels:
+        verts, faces = _largest_component(verts, faces)
+    return verts, faces
 
 
-def _mesh_product(vol: Volume, iso: float, inside_value: float, outside_value: float, *,
-                  remove_support: bool, support_radius: float, gaps_mm: Sequence[float], name: str):
-    """Segment the product and mesh its outer surface in voxel indices.
+def _largest_component(verts: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The mesh's largest connected component. Meshed with two levels, the voxels kept below the
+    level can leave a few voxels of the product (a speck of noise it took in) apart from it."""
+    from .surface import component_labels
+
+    n, labels = component_labels(faces, len(verts))
+    if n <= 1:
+        return verts, faces
+    keep = labels == np.argmax(np.bincount(labels))
+    renumber = np.cumsum(keep) - 1
+    faces = renumber[faces[keep[faces[:, 0]]]].astype(faces.dtype)
+    return verts[keep], faces
+
+
+def _all_neighbours(m: np.ndarray) -> np.ndarray:
+    """For planes ``m[1:-1]``: whether a voxel and its six neighbours are all set (none beyond y, x)."""
+    c = m[1:-1].copy()
+    c &= m[:-2]
+    c &= m[2:]
+    c[:, 1:] &= m[1:-1, :-1]
+    c[:, :-1] &= m[1:-1, 1:]
+    c[:, :, 1:] &= m[1:-1, :, :-1]
+    c[:, :, :-1] &= m[1:-1, :, 1:]
+    c[:, 0] = c[:, -1] = False
+    c[:, :, 0] = c[:, :, -1] = False
+    return c
+
+
+def _any_neighbour(m: np.ndarray) -> np.ndarray:
+    """For planes ``m[1:-1]``: whether any of a voxel's six neighbours is set (none beyond y, x)."""
+    c = m[:-2] | m[2:]
+    c[:, 1:] |= m[1:-1, :-1]
+    c[:, :-1] |= m[1:-1, 1:]
+    c[:, :, 1:] |= m[1:-1, :, :-1]
+    c[:, :, :-1] |= m[1:-1, :, 1:]
+    return c
+
+
+def _mesh_product(vol: Volume, iso: float, seg_iso: float, inside_value: float, outside_value: float,
+                  background: float, *, remove_support: bool, support_radius: float, gaps_mm: Sequence[float],
+                  name: str):
+    """Segment the product at ``seg_iso`` and mesh its outer surface at ``iso`` in voxel indices.
 
     The gap widths are tried in turn (:func:`_segment`) until the product is
     one solid of genus 0 that encloses no other piece; the last is kept
@@ -1455,27 +1649,38 @@ def _mesh_product(vol: Volume, iso: float, inside_value: float, outside_value: f
     step = max(1, _SLAB_VOXELS // (shape[1] * shape[2]))
     step = max(coarse, step - step % coarse)
     slabs = _slab_bounds(0, shape[0], step)
+    def everywhere(s: _Segmentation) -> bool:
+        return bool(np.all(s.lo == 0) and np.all(s.hi == np.asarray(shape)))
+
     attempts = []
-    for i, gap in enumerate(gaps_mm):
-        last = i == len(gaps_mm) - 1
+    gaps = list(gaps_mm)
+    i = -1
+    while i + 1 < len(gaps):
+        i += 1
+        last = i == len(gaps) - 1
         for s in attempts:
             s.fg = None
-        seg = _segment(data, iso, spacing_zyx, slabs, gap_mm=float(gap), remove_support=remove_support,
+        seg = _segment(data, seg_iso, spacing_zyx, slabs, gap_mm=float(gaps[i]), remove_support=remove_support,
                        support_radius=support_radius, coarse=coarse, name=name)
         attempts.append(seg)
         give_back_freed_memory()
+        if everywhere(seg) and len(attempts) > 1 and not everywhere(attempts[-2]):
+            # a box this wide fits nowhere in a noisy background: the narrower gap's product,
+            # segmented again (its labels are gone), is the last
+            gaps = gaps[:i] + [gaps[i - 1]]
+            continue
         if not (seg.closed() or last):
             continue
         if seg.n_object < _MIN_OBJECT_VOXELS:
             raise VolumeError(
-                f"{name}: no object: the largest region above the level {iso:g} has only {seg.n_object} voxels"
+                f"{name}: no object: the largest region above the level {seg_iso:g} has only {seg.n_object} voxels"
             )
-        if np.all(seg.lo == 0) and np.all(seg.hi == np.asarray(shape)):
+        if everywhere(seg):
             raise VolumeError(
-                f"{name}: the object above the level {iso:g} touches all six faces of the volume: there is "
+                f"{name}: the object above the level {seg_iso:g} touches all six faces of the volume: there is "
                 "no background around it (is the whole volume object, or the level too low?)"
             )
-        index_vertices, faces = _march(vol, data, iso, seg, inside_value, outside_value, step)
+        index_vertices, faces = _march(vol, data, iso, seg_iso, seg, inside_value, outside_value, background, step)
         # marching cubes may join voxels that touch only along an edge, which 6-connected
         # voxels do not: a handle the voxels' count did not see; a wider gap closes it
         seg.mesh_genus = _surface_genus(len(index_vertices), len(faces))
@@ -1571,13 +1776,39 @@ def extract_surface(
     vol = _as_volume(volume)
     _check_options(smoothing, target_vertices, support_radius)
     levels = intensity_levels(vol, level=level, name=name)
-    iso = levels.level
+    iso, seg_iso = levels.level, levels.segment
     if vol.data.dtype.kind in "biu":
-        iso = math.floor(iso) + 0.5  # the same voxels above it; no vertex on a voxel
+        # the same voxels above them; no vertex on a voxel
+        iso, seg_iso = math.floor(iso) + 0.5, math.floor(seg_iso) + 0.5
     inside_value, outside_value = _fill_values(levels)
-    index_vertices, faces, bounds, seg, attempts = _mesh_product(
-        vol, iso, inside_value, outside_value, remove_support=remove_support,
-        support_radius=float(support_radius), gaps_mm=GAPS_MM, name=name)
+
+    def mesh_product(at: float):
+        return _mesh_product(vol, iso, at, inside_value, outside_value, levels.background,
+                             remove_support=remove_support, support_radius=float(support_radius),
+                             gaps_mm=GAPS_MM, name=name)
+
+    # the level decides what is inside, unless the outermost tissue breaks up there (a peel
+    # thinner than a slice, at the poles) and no gap width closes it: then the lower level
+    try:
+        result = mesh_product(iso)
+    except VolumeError:
+        if seg_iso >= iso:
+            raise
+        result = None
+    tried_before = []
+    if seg_iso < iso and (result is None or result[3].mesh_genus != 0 or result[3].gap_mm > SLICE_GAP_MM):
+        tried_before = list(result[4]) if result is not None else []
+        again = mesh_product(seg_iso)
+        if result is None or (again[3].mesh_genus == 0 and (result[3].mesh_genus != 0
+                                                             or again[3].gap_mm < result[3].gap_mm)):
+            result = again
+        del again
+    if result[3].level >= iso:
+        levels = replace(levels, segment_level=levels.level)  # not needed: said nowhere
+    index_vertices, faces, bounds, seg, attempts = result
+    del result
+    if tried_before and tried_before[-1] is not attempts[-1]:
+        attempts = tried_before + list(attempts)
     n_mc = len(index_vertices)
     index_vertices *= vol.spacing
     world = index_vertices @ vol.direction.T
@@ -1597,7 +1828,8 @@ def extract_surface(
     if target_vertices is not None:
         mesh = decimate(mesh, int(target_vertices))
         check_closed_surface(mesh, name=name, allow_degenerate=True)
-    tried = tuple({"gap_mm": a.gap_mm, "genus": a.genus, "mesh_genus": a.mesh_genus, "enclosed": a.enclosed,
+    tried = tuple({"level": a.level, "gap_mm": a.gap_mm, "genus": a.genus, "mesh_genus": a.mesh_genus,
+                   "enclosed": a.enclosed,
                    "channel_mm": round(a.pit_mm, 2) if math.isfinite(a.pit_mm) else None,
                    "n_filled_voxels": a.n_filled} for a in attempts)
     ext = Extraction(mesh, levels, bounds, seg.n_object, seg.n_filled, seg.n_support, n_mc,
@@ -1625,6 +1857,12 @@ def _warnings(ext: Extraction, seg: "_Segmentation", attempts, vol: Volume) -> l
         notes.append(
             f"the surface at the level had {' and '.join(why)}; gaps up to {seg.gap_mm:g} mm wide were closed "
             f"and {seg.n_filled:,} voxels ({seg.n_filled * ml:.1f} mL) inside filled"
+        )
+    if seg.level < ext.levels.level:
+        notes.append(
+            f"across the slices the outermost tissue reaches only {ext.levels.slice_outer:.4g} (thinner than a "
+            f"slice) and broke up at the level {ext.levels.level:.4g}: what is inside was decided at "
+            f"{ext.levels.segment:.4g}, the surface kept at the level where the voxels reach it"
         )
     if not seg.closed():
         left = ([f"genus {seg.genus}"] if seg.genus else []) + (
@@ -2001,7 +2239,7 @@ def _settings(options: dict) -> str:
                                      sort_keys=True, default=list).encode()).hexdigest()
 
 
-_CONSTANT_PREFIXES = ("GAPS_", "ENCLOSED_", "SUPPORT_", "OUTER_", "PIT_")
+_CONSTANT_PREFIXES = ("GAPS_", "ENCLOSED_", "SUPPORT_", "OUTER_", "PIT_", "SLICE_")
 
 
 def extract_file(source, out_dir, *, level: float | None = None, smoothing: int = 10,
