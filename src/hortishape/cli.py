@@ -237,7 +237,7 @@ def _add_extract(sub) -> None:
             "  2. the outer surface by construction: everything that cannot be reached from outside is\n"
             "     inside (a pepper's hollow, an apple's core, the gaps between segments); gaps and\n"
             "     channels 1, 2, 4 or 8 mm wide are closed in turn until the product is one solid of\n"
-            "     genus 0; where a peel thinner than a slice breaks up at the level and no 2 mm gap\n"
+            "     genus 0; where a peel thinner than a slice breaks up at the level and no gap width\n"
             "     closes it, a lower level half-way to its brightness across the slices decides what is\n"
             "     inside; the largest piece is kept, and a support or scanner bed touching it dropped;\n"
             "  3. marching cubes on the intensity (sub-voxel accurate), one closed surface with outward\n"

@@ -38,9 +38,9 @@ millimetres, the kind of scan the rest of hortishape works on:
    together lie beyond it on every side (a peel broken into pieces). Beyond
    the volume is air: a box may stand partly outside it, so a fruit that
    nearly fills the field of view gets no cap out to the border. If no box
-   closes the product, or only one wider than 2 mm, the solid is found
-   again at the lower level of step 1 and kept when it closes with narrower
-   gaps. The largest 6-connected piece of the solid is the product. When it touches the border of the volume (a
+   closes the product, the solid is found again at the lower level of step
+   1 and kept when that closes it. The largest 6-connected piece of the
+   solid is the product. When it touches the border of the volume (a
    scanner bed or a support does, the product normally does not), it is
    eroded by ``support_radius``: parts that then come apart from the product
    and reach the border are dropped as a support. A support thinner than
@@ -196,13 +196,11 @@ FRUIT_EXTENT_MM = (10.0, 600.0)
 #: Across the slices (the coarsest axis, at least ``SLICE_ANISOTROPY`` times the finest),
 #: the ``SLICE_QUANTILE`` of the outermost tissue's peaks; where ``SLICE_SHARE`` of the way
 #: to it from the background is below the level, what is inside is decided there instead
-#: (no lower than the rays' detection level): a thin peel stays whole at the poles.
+#: (no lower than the rays' detection level), when no gap width closes the product at the
+#: level: a thin peel stays whole at the poles.
 SLICE_ANISOTROPY = 1.25
 SLICE_QUANTILE = 0.1
 SLICE_SHARE = 0.5
-#: That lower level is tried only when the level's own product is not closed with gaps
-#: up to this width (mm), and kept when it closes with narrower gaps.
-SLICE_GAP_MM = 2.0
 
 
 # --------------------------------------------------------------------------
@@ -1667,7 +1665,7 @@ def _mesh_product(vol: Volume, iso: float, seg_iso: float, inside_value: float, 
         if everywhere(seg) and len(attempts) > 1 and not everywhere(attempts[-2]):
             # a box this wide fits nowhere in a noisy background: the narrower gap's product,
             # segmented again (its labels are gone), is the last
-            gaps = gaps[:i] + [gaps[i - 1]]
+            gaps = gaps[: i + 1] + [gaps[i - 1]]
             continue
         if not (seg.closed() or last):
             continue
@@ -1796,11 +1794,15 @@ def extract_surface(
             raise
         result = None
     tried_before = []
-    if seg_iso < iso and (result is None or result[3].mesh_genus != 0 or result[3].gap_mm > SLICE_GAP_MM):
+    if seg_iso < iso and (result is None or result[3].mesh_genus != 0 or not result[3].closed()):
         tried_before = list(result[4]) if result is not None else []
-        again = mesh_product(seg_iso)
-        if result is None or (again[3].mesh_genus == 0 and (result[3].mesh_genus != 0
-                                                             or again[3].gap_mm < result[3].gap_mm)):
+        try:
+            again = mesh_product(seg_iso)
+        except VolumeError:
+            if result is None:
+                raise
+            again = None  # the lower level took in the background's noise: the level's product stays
+        if again is not None and (result is None or (again[3].mesh_genus == 0 and again[3].closed())):
             result = again
         del again
     if result[3].level >= iso:
