@@ -239,11 +239,14 @@ class IntensityLevels:
         seen along the volume's coarsest axis, stays below ``level`` (a
         peel thinner than a slice: ``slice_outer``). The surface is meshed
         at ``level`` wherever the voxels reach it, and between the two
-        levels only where they do not. NaN: ``level``.
+        levels only where they do not. NaN: ``level``. In an
+        :class:`Extraction`'s levels, the one that was used: ``level``
+        unless no gap width closed the product there.
     slice_outer : float
         The outermost tissue's brightness along the coarsest axis (the 10th
         percentile of the rays' peaks), when it set ``segment_level``; NaN
-        otherwise.
+        otherwise (and in an :class:`Extraction` whose product the level
+        itself closed).
     """
 
     background: float
@@ -1805,8 +1808,8 @@ def extract_surface(
         if again is not None and (result is None or (again[3].mesh_genus == 0 and again[3].closed())):
             result = again
         del again
-    if result[3].level >= iso:
-        levels = replace(levels, segment_level=levels.level)  # not needed: said nowhere
+    if result[3].level >= iso:  # the lower level was not used: the levels say so
+        levels = replace(levels, segment_level=levels.level, slice_outer=float("nan"))
     index_vertices, faces, bounds, seg, attempts = result
     del result
     if tried_before and tried_before[-1] is not attempts[-1]:
