@@ -410,8 +410,9 @@ def intensity_levels(volume, *, level: float | None = None, name: str = "volume"
     if fg > bg:
         detect = _detect_level(bg, fg, noise)
         peak = _slice_outer(vol, detect)
-        if math.isfinite(peak) and max(detect, bg + SLICE_SHARE * (peak - bg)) < level:
-            segment, across = max(detect, bg + SLICE_SHARE * (peak - bg)), peak
+        lower = max(detect, bg + SLICE_SHARE * (peak - bg)) if math.isfinite(peak) else level
+        if lower < level:
+            segment, across = lower, peak
     return IntensityLevels(background=bg, foreground=fg, threshold=threshold, level=level, outer=outer,
                            method=method, segment_level=segment, slice_outer=across)
 
@@ -1600,20 +1601,13 @@ def _largest_component(verts: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray
     if n <= 1:
         return verts, faces
     keep = labels == np.argmax(np.bincount(labels))
-    renumber = np.cumsum(keep) - 1
-    faces = renumber[faces[keep[faces[:, 0]]]].astype(faces.dtype)
-    return verts[keep], faces
+    renumber = np.cumsum(keep, dtype=faces.dtype) - 1
+    return verts[keep], renumber[faces[keep[faces[:, 0]]]]
 
 
 def _all_neighbours(m: np.ndarray) -> np.ndarray:
     """For planes ``m[1:-1]``: whether a voxel and its six neighbours are all set (none beyond y, x)."""
-    c = m[1:-1].copy()
-    c &= m[:-2]
-    c &= m[2:]
-    c[:, 1:] &= m[1:-1, :-1]
-    c[:, :-1] &= m[1:-1, 1:]
-    c[:, :, 1:] &= m[1:-1, :, :-1]
-    c[:, :, :-1] &= m[1:-1, :, 1:]
+    c = m[1:-1] & ~_any_neighbour(~m)
     c[:, 0] = c[:, -1] = False
     c[:, :, 0] = c[:, :, -1] = False
     return c
@@ -1790,30 +1784,29 @@ def extract_surface(
 
     # the level decides what is inside, unless the outermost tissue breaks up there (a peel
     # thinner than a slice, at the poles) and no gap width closes it: then the lower level
+    result, attempts = None, []  # the attempts of every pass, in order
     try:
         result = mesh_product(iso)
+        attempts += result[4]
     except VolumeError:
         if seg_iso >= iso:
             raise
-        result = None
-    tried_before = []
     if seg_iso < iso and (result is None or result[3].mesh_genus != 0 or not result[3].closed()):
-        tried_before = list(result[4]) if result is not None else []
         try:
             again = mesh_product(seg_iso)
         except VolumeError:
             if result is None:
                 raise
-            again = None  # the lower level took in the background's noise: the level's product stays
-        if again is not None and (result is None or (again[3].mesh_genus == 0 and again[3].closed())):
-            result = again
-        del again
+            # the lower level took in the background's noise: the level's product stays
+        else:
+            attempts += again[4]
+            if result is None or (again[3].mesh_genus == 0 and again[3].closed()):
+                result = again
+            del again
     if result[3].level >= iso:  # the lower level was not used: the levels say so
         levels = replace(levels, segment_level=levels.level, slice_outer=float("nan"))
-    index_vertices, faces, bounds, seg, attempts = result
+    index_vertices, faces, bounds, seg, _ = result
     del result
-    if tried_before and tried_before[-1] is not attempts[-1]:
-        attempts = tried_before + list(attempts)
     n_mc = len(index_vertices)
     index_vertices *= vol.spacing
     world = index_vertices @ vol.direction.T
