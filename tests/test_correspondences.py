@@ -134,6 +134,49 @@ def test_ray_scene_max_distance():
     np.testing.assert_allclose(t2[[0, 2]], t[[0, 2]])
 
 
+def _random_rays(n, seed=0):
+    rng = np.random.default_rng(seed)
+    o = rng.normal(size=(n, 3)) * 4.0
+    d = rng.normal(size=(n, 3))
+    return o, d / np.linalg.norm(d, axis=1, keepdims=True), rng.uniform(5.0, 20.0, n)
+
+
+def test_a_scene_for_few_queries_gives_embreex_hits():
+    from hortishape.registration import _embree
+
+    if _embree.library() is None:
+        pytest.skip("Embree's C library is not reachable here (embreex is used instead)")
+    s = sphere(10.0, level=5)
+    o, d, limit = _random_rays(1000 + 5)  # a last packet of 5 rays
+    packets = RayScene(s.vertices, s.faces, few_queries=True)
+    assert packets._packets is not None
+    for lim in (None, limit):
+        a = RayScene(s.vertices, s.faces).first_hit(o, d, max_distance=lim)
+        b = packets.first_hit(o, d, max_distance=lim)
+        assert (a[0] >= 0).any() and (a[0] < 0).any()
+        for x, y in zip(a, b):
+            np.testing.assert_array_equal(x, y)
+
+
+def test_without_embree_the_fallback_finds_the_same_hits(monkeypatch):
+    import sys
+
+    s = sphere(10.0, level=2)
+    o, d, limit = _random_rays(50)
+    embree = RayScene(s.vertices, s.faces).first_hit(o, d, max_distance=limit)
+    from hortishape.registration import _embree
+
+    monkeypatch.setitem(sys.modules, "embreex", None)  # import embreex now raises ImportError
+    monkeypatch.setattr(_embree, "library", lambda: None)
+    scene = RayScene(s.vertices, s.faces, few_queries=True)
+    assert scene._scene is None and scene._packets is None
+    face, t, bary = scene.first_hit(o, d, max_distance=limit)
+    assert (face >= 0).sum() > 10
+    np.testing.assert_array_equal(face, embree[0])
+    np.testing.assert_allclose(t, embree[1], atol=1e-5)
+    np.testing.assert_allclose(bary, embree[2], atol=1e-5)
+
+
 def test_ray_scene_threads_give_the_same_hits(monkeypatch):
     from hortishape.registration import correspondences
 

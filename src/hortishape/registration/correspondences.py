@@ -19,6 +19,7 @@ Embree (``embreex``) when available.
 
 from __future__ import annotations
 
+import functools
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -27,6 +28,7 @@ import numpy as np
 
 from ..mesh import Mesh
 from ..surface import vertex_normals
+from . import _embree
 from .config import CROSSING_MIN_EDGES, RegistrationConfig
 from .result import Registration
 from .template import _Level, close_scan
@@ -57,6 +59,16 @@ RAY_THREAD_MIN = 8192
 RAY_THREADS = 4
 
 
+@functools.lru_cache(maxsize=4)
+def _ray_pool(threads: int, pid: int) -> ThreadPoolExecutor:
+    """Threads for split ray queries, kept for the process (``pid``: a forked child starts its own).
+
+    Started once rather than for every query: starting them cost a measurable
+    part of a fine iteration (docs/design-notes.md).
+    """
+    return ThreadPoolExecutor(threads, thread_name_prefix="hortishape-rays")
+
+
 def _ray_threads(n_rays: int) -> int:
     try:
         cores = len(os.sched_getaffinity(0))
@@ -76,6 +88,10 @@ class RayScene:
     ----------
     vertices : (n, 3) array_like of float
     faces : (m, 3) array_like of int
+    few_queries : bool, default: False
+        The scene will be queried once or twice: Embree reads the arrays in
+        place (:mod:`._embree`), which builds it several times faster than
+        ``embreex`` does but queries on one core. Same hits either way.
 
     Examples
     --------
@@ -85,11 +101,18 @@ class RayScene:
     ([0], [1.0])
     """
 
-    def __init__(self, vertices, faces) -> None:
+    def __init__(self, vertices, faces, *, few_queries: bool = False) -> None:
         self.vertices = np.asarray(vertices, dtype=np.float64)
         self.faces = np.asarray(faces, dtype=np.int64)
         # shift to the centroid so float32 keeps precision far from the origin
         self._shift = self.vertices.mean(axis=0)
+        self._packets = None
+        if few_queries and _embree.library() is not None:
+            scene = _embree.PacketScene(self.vertices - self._shift, self.faces)
+            if scene.ok:
+                self._packets = scene
+                self._scene = None
+                return
         try:
             from embreex import rtcore_scene
             from embreex.mesh_construction import TriangleMesh
@@ -110,6 +133,9 @@ class RayScene:
 
     def _run(self, o: np.ndarray, d: np.ndarray, dists) -> dict:
         """Embree's first hits of float32 rays, the rays split over threads when there are many."""
+        if self._packets is not None:
+            face, u, v = self._packets.hits(o, d, dists)
+            return {"primID": face, "u": u, "v": v}
         n = _ray_threads(len(o))
         if n == 1:
             return self._scene.run(o, d, dists=dists, output=1)
@@ -119,8 +145,7 @@ class RayScene:
             a, b = bounds[i], bounds[i + 1]
             return self._scene.run(o[a:b], d[a:b], dists=None if dists is None else dists[a:b], output=1)
 
-        with ThreadPoolExecutor(n) as pool:
-            parts = list(pool.map(part, range(n)))
+        parts = list(_ray_pool(n, os.getpid()).map(part, range(n)))
         return {key: np.concatenate([p[key] for p in parts]) for key in ("primID", "u", "v")}
 
     def first_hit(self, origins, directions, max_distance=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -143,12 +168,17 @@ class RayScene:
         barycentric : (k, 3) float64 ndarray
             Barycentric coordinates of the hit in its face (zeros for a miss).
         """
+        face, t, bary, _ = self._first_hit(origins, directions, max_distance)
+        return face, t, bary
+
+    def _first_hit(self, origins, directions, max_distance=None):
+        """:meth:`first_hit`, and the vertices (k, 3) of the face each ray hit (any face's where ``face`` is -1)."""
         o = np.asarray(origins, dtype=np.float64)
         d = np.asarray(directions, dtype=np.float64)
         k = len(o)
         if k == 0:
-            return np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 3))
-        if self._scene is not None:
+            return np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3), np.int64)
+        if self._scene is not None or self._packets is not None:
             dists = None
             if max_distance is not None:
                 lim = np.asarray(max_distance, dtype=np.float64)
@@ -159,32 +189,38 @@ class RayScene:
             u = np.asarray(res["u"], dtype=np.float64)
             v = np.asarray(res["v"], dtype=np.float64)
             bary = np.stack([1.0 - u - v, u, v], axis=1)
-        else:  # pragma: no cover
+        else:  # pragma: no cover - without embreex (tests force it on a small case)
             face = np.full(k, -1, dtype=np.int64)
             bary = np.zeros((k, 3))
             tri_id, ray_id, loc = self._fallback.ray.intersects_id(
                 o, d, multiple_hits=False, return_locations=True
             )
             face[ray_id] = tri_id
-            from .surface import _barycentric
+            from ..surface import _barycentric
 
             tri = self.faces[tri_id]
             vv = self.vertices
             bary[ray_id] = _barycentric(loc, vv[tri[:, 0]], vv[tri[:, 1]], vv[tri[:, 2]])
         hit = face >= 0
-        t = np.full(k, np.inf)
-        bary[~hit] = 0.0
-        if hit.any():
-            tri = self.faces[face[hit]]
-            p = np.einsum("kj,kjd->kd", bary[hit], self.vertices[tri])
-            # distance along the ray, recomputed in float64
-            t[hit] = np.einsum("kd,kd->k", p - o[hit], d[hit])
+        if not hit.all():
+            bary[~hit] = 0.0
+        # np.take gathers rows about twice as fast as fancy indexing
+        tri = np.take(self.faces, np.maximum(face, 0), axis=0)
+        p = _interpolate(self.vertices, tri, bary)
+        # distance along the ray, recomputed in float64
+        t = np.einsum("kd,kd->k", p - o, d)
+        t[~hit] = np.inf
         if max_distance is not None:
             beyond = t > np.asarray(max_distance, dtype=np.float64)
             face[beyond] = -1
             t[beyond] = np.inf
             bary[beyond] = 0.0
-        return face, t, bary
+        return face, t, bary, tri
+
+
+def _interpolate(values: np.ndarray, tri: np.ndarray, bary: np.ndarray) -> np.ndarray:
+    """``values`` (n, 3) at barycentric points ``bary`` (k, 3) of the faces ``tri`` (k, 3)."""
+    return np.einsum("kj,kjd->kd", bary, np.take(values, tri, axis=0))
 
 
 @dataclass(frozen=True, eq=False)
@@ -416,9 +452,9 @@ def find_correspondences(
     tn = np.zeros((2 * n, 3))
     status = np.full(2 * n, NO_HIT, dtype=np.int8)
 
-    def cast(rows: np.ndarray, limit=None) -> None:
-        """Rays ``rows`` against the target, filters (a) and (b)."""
-        face, tr, bary = tgt.scene.first_hit(origins[rows], dirs[rows], max_distance=limit)
+    def cast(rows, limit=None) -> None:
+        """Rays ``rows`` (a slice or indices) against the target, filters (a) and (b)."""
+        face, tr, bary, tri = tgt.scene._first_hit(origins[rows], dirs[rows], max_distance=limit)
         hit = face >= 0
         if tgt.filled is not None and not tgt.patch_data:
             # a hole's patch is no data: the ray found nothing (it stops there, as at the scan's hole)
@@ -427,12 +463,11 @@ def find_correspondences(
             hit &= ~patch
         # a hit "behind" the origin by round-off counts as distance 0
         t[rows] = np.where(hit, np.maximum(tr, 0.0), np.inf)
-        tnr = np.zeros((len(rows), 3))
-        if hit.any():
-            tri = tgt.mesh.faces[face[hit]]
-            nn = np.einsum("kj,kjd->kd", bary[hit], tgt.normals[tri])
-            nrm = np.linalg.norm(nn, axis=1, keepdims=True)
-            tnr[hit] = np.divide(nn, nrm, out=np.zeros_like(nn), where=nrm > 0)
+        nn = _interpolate(tgt.normals, tri, bary)
+        if not hit.all():
+            nn[~hit] = 0.0
+        nrm = np.linalg.norm(nn, axis=1, keepdims=True)
+        tnr = np.divide(nn, nrm, out=np.zeros_like(nn), where=nrm > 0)
         tn[rows] = tnr
         ok_normal = np.einsum("kd,kd->k", tnr, src_n2[rows]) >= cos_max
         ok_dist = t[rows] < max_distance
@@ -443,18 +478,19 @@ def find_correspondences(
         cand = rows[status[rows] == KEPT]
         # start a little off the surface so the vertex's own faces are not hit
         eps = 1e-4 * _scale(sv)
-        _, ts, _ = scene.first_hit(origins[cand] + eps * dirs[cand], dirs[cand])
+        d = np.take(dirs, cand, axis=0)
+        # a source hit counts only before the target's: the rays stop there (a short query is cheaper)
+        _, ts, _ = scene.first_hit(np.take(origins, cand, axis=0) + eps * d, d, max_distance=t[cand] - eps)
         status[cand[ts + eps < t[cand] - 1e-9]] = CROSSING
 
-    out_rows = np.arange(n)
-    cast(out_rows)
+    cast(slice(0, n))
     # an inward ray matters only if it is nearer than a kept outward hit, so
     # it is cast no farther (a short query is cheaper)
     limit = np.where(status[:n] == KEPT, t[:n], np.inf)
-    cast(out_rows + n, limit)
+    cast(slice(n, 2 * n), limit)
     cand = np.flatnonzero(status == KEPT)
     if check_crossings and len(cand) and t[cand].max() > crossing_min_distance:
-        scene = RayScene(sv, faces)
+        scene = RayScene(sv, faces, few_queries=True)
         flag_crossings(scene, cand)
         # an outward hit rejected here cut its inward ray short: cast it in full
         redo = np.flatnonzero((status[:n] == CROSSING) & np.isfinite(limit)) + n
@@ -472,8 +508,9 @@ def find_correspondences(
     st = np.where(found, KEPT, status[nearer]).astype(np.int8)
     dist = np.where(found, t[pick], np.inf)
     pts = sv.copy()
-    pts[found] = origins[pick[found]] + dist[found, None] * dirs[pick[found]]
-    tnorm = np.where(found[:, None], tn[pick], 0.0)
+    at = pick[found]
+    pts[found] = np.take(origins, at, axis=0) + dist[found, None] * np.take(dirs, at, axis=0)
+    tnorm = np.where(found[:, None], np.take(tn, pick, axis=0), 0.0)
     return Correspondences(pts, found, dist, tnorm, st)
 
 
