@@ -164,10 +164,10 @@ def test_without_embree_the_fallback_finds_the_same_hits(monkeypatch):
     s = sphere(10.0, level=2)
     o, d, limit = _random_rays(50)
     embree = RayScene(s.vertices, s.faces).first_hit(o, d, max_distance=limit)
-    from hortishape.registration import _embree
+    from hortishape.registration import correspondences
 
     monkeypatch.setitem(sys.modules, "embreex", None)  # import embreex now raises ImportError
-    monkeypatch.setattr(_embree, "library", lambda: None)
+    monkeypatch.setattr(correspondences, "_embree_library", lambda: None)
     scene = RayScene(s.vertices, s.faces, few_queries=True)
     assert scene._scene is None and scene._packets is None
     face, t, bary = scene.first_hit(o, d, max_distance=limit)

@@ -28,7 +28,8 @@ import numpy as np
 
 from ..mesh import Mesh
 from ..surface import vertex_normals
-from . import _embree
+from ._embree import PacketScene
+from ._embree import library as _embree_library
 from .config import CROSSING_MIN_EDGES, RegistrationConfig
 from .result import Registration
 from .template import _Level, close_scan
@@ -90,7 +91,7 @@ class RayScene:
     faces : (m, 3) array_like of int
     few_queries : bool, default: False
         The scene will be queried once or twice: Embree reads the arrays in
-        place (:mod:`._embree`), which builds it several times faster than
+        place (``registration/_embree.py``), which builds it several times faster than
         ``embreex`` does but queries on one core. Same hits either way.
 
     Examples
@@ -107,8 +108,8 @@ class RayScene:
         # shift to the centroid so float32 keeps precision far from the origin
         self._shift = self.vertices.mean(axis=0)
         self._packets = None
-        if few_queries and _embree.library() is not None:
-            scene = _embree.PacketScene(self.vertices - self._shift, self.faces)
+        if few_queries and _embree_library() is not None:
+            scene = PacketScene(self.vertices - self._shift, self.faces)
             if scene.ok:
                 self._packets = scene
                 self._scene = None
