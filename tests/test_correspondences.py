@@ -173,8 +173,8 @@ def test_without_embree_the_fallback_finds_the_same_hits(monkeypatch):
     face, t, bary = scene.first_hit(o, d, max_distance=limit)
     assert (face >= 0).sum() > 10
     np.testing.assert_array_equal(face, embree[0])
-    np.testing.assert_allclose(t, embree[1], atol=1e-5)
-    np.testing.assert_allclose(bary, embree[2], atol=1e-5)
+    np.testing.assert_allclose(t, embree[1], atol=1e-4)  # Embree's barycentrics are float32
+    np.testing.assert_allclose(bary, embree[2], atol=1e-4)
 
 
 def test_ray_scene_threads_give_the_same_hits(monkeypatch):

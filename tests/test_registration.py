@@ -129,6 +129,21 @@ def test_known_smooth_deformation_is_recovered(template, dense):
     assert (np.einsum("ij,ij->i", before, after) > 0).all()
 
 
+def test_without_embree_the_registration_recovers_the_deformation(template, dense, monkeypatch):
+    # where embreex has no wheel (macOS, ARM) libigl casts the rays
+    import sys
+
+    from hortishape.registration import correspondences
+
+    monkeypatch.setitem(sys.modules, "embreex", None)
+    monkeypatch.setattr(correspondences, "_embree_library", lambda: None)
+    motion = rigid_transform(rotation_about([1.0, 1.0, 0.0], 0.3), [5.0, -3.0, 2.0])
+    target = Mesh(apply_transform(motion, deform(dense, dense.vertices)), dense.faces)
+    truth = apply_transform(motion, deform(dense, template.mesh.vertices))
+    reg = register(template, target)
+    assert np.linalg.norm(reg.vertices - truth, axis=1).mean() < 0.05
+
+
 def test_axis_hint_and_initial_transform(template, dense):
     r = rotation_about([1.0, 0.0, 0.0], np.pi)  # upside down
     target = Mesh(dense.vertices @ r.T, dense.faces)

@@ -82,8 +82,9 @@ class RayScene:
     """First-hit ray queries against a fixed triangle mesh.
 
     Uses Embree through ``embreex`` (float32 internally; hit points are
-    recomputed in float64 from the barycentric coordinates) and falls back to
-    trimesh's pure-Python intersector (about 1000x slower) without it.
+    recomputed in float64 from the barycentric coordinates). Where embreex
+    has no wheel (macOS, ARM) libigl's AABB tree answers instead, several
+    times slower.
 
     Parameters
     ----------
@@ -117,9 +118,12 @@ class RayScene:
         try:
             from embreex import rtcore_scene
             from embreex.mesh_construction import TriangleMesh
-        except ImportError:  # pragma: no cover - depends on the platform
+        except ImportError:  # pragma: no cover - depends on the platform (tests force it)
+            import igl
+
             self._scene = None
-            self._fallback = Mesh(self.vertices, self.faces).to_trimesh()
+            self._fallback = igl.AABB()
+            self._fallback.init(self.vertices, self.faces)
         else:
             self._scene = rtcore_scene.EmbreeScene()
             # indexed geometry builds ~1.6x faster than a triangle soup
@@ -190,18 +194,12 @@ class RayScene:
             u = np.asarray(res["u"], dtype=np.float64)
             v = np.asarray(res["v"], dtype=np.float64)
             bary = np.stack([1.0 - u - v, u, v], axis=1)
-        else:  # pragma: no cover - without embreex (tests force it on a small case)
-            face = np.full(k, -1, dtype=np.int64)
-            bary = np.zeros((k, 3))
-            tri_id, ray_id, loc = self._fallback.ray.intersects_id(
-                o, d, multiple_hits=False, return_locations=True
-            )
-            face[ray_id] = tri_id
-            from ..surface import _barycentric
-
-            tri = self.faces[tri_id]
-            vv = self.vertices
-            bary[ray_id] = _barycentric(loc, vv[tri[:, 0]], vv[tri[:, 1]], vv[tri[:, 2]])
+        else:  # pragma: no cover - without embreex (tests force it)
+            # libigl's limit is one for all rays: the rays' own limits apply below
+            face, _, uv = self._fallback.intersect_ray_first(
+                self.vertices, self.faces, np.ascontiguousarray(o), np.ascontiguousarray(d))
+            face = face.astype(np.int64)
+            bary = np.column_stack([1.0 - uv[:, 0] - uv[:, 1], uv[:, 0], uv[:, 1]])
         hit = face >= 0
         if not hit.all():
             bary[~hit] = 0.0
