@@ -214,6 +214,14 @@ def test_read_landmarks_formats_and_errors(tmp_path):
         read_landmarks(tmp_path / "two.json")
 
 
+def test_landmark_files_saved_by_windows_tools_are_read(tmp_path):
+    # Excel's "CSV UTF-8" and some editors start the file with a byte-order mark; names need not be ASCII
+    (tmp_path / "excel.csv").write_bytes("instance,landmark,x,y,z\r\npomme_1,pédoncule,1,2,3\r\n".encode("utf-8-sig"))
+    assert read_landmarks(tmp_path / "excel.csv")["pomme_1"]["pédoncule"].tolist() == [1.0, 2.0, 3.0]
+    (tmp_path / "marks.json").write_bytes(json.dumps({"a": {"calice": [4, 5, 6]}}).encode("utf-8-sig"))
+    assert read_landmarks(tmp_path / "marks.json")["a"]["calice"].tolist() == [4.0, 5.0, 6.0]
+
+
 def test_bad_model_directories(built, tmp_path):
     out, *_ = built
     with pytest.raises(HortishapeError, match="not a built model directory"):

@@ -89,5 +89,5 @@ def atomic_path(path: Path, error: type[Exception]) -> Iterator[Path]:
 def atomic_text(path: Path, text: str, error: type[Exception]) -> Path:
     """Write ``text`` to ``path`` through :func:`atomic_path`; return ``path``."""
     with atomic_path(path, error) as tmp:
-        tmp.write_text(text)
+        tmp.write_text(text, encoding="utf-8")
     return path

@@ -619,7 +619,7 @@ def _run_update(args) -> int:
         print(f"skipped {path}: {reason}")
     import json
 
-    moved = json.loads((Path(result.out_dir) / "summary.json").read_text())["update"]["mean_moved_rms_mm"]
+    moved = json.loads((Path(result.out_dir) / "summary.json").read_text(encoding="utf-8"))["update"]["mean_moved_rms_mm"]
     print(f"model: {len(result.names)} instances, {len(result.explained_variance)} modes; the mean moved "
           f"{moved:.3f} mm (RMS over the vertices)")
     print(f"wrote {result.model_path} in {result.seconds:.1f} s")
@@ -744,12 +744,14 @@ def _run_fit(args) -> int:
     print(f"residual to the scan surface: mean {fit.surface_mean:.3f} mm, max {fit.surface_max:.3f} mm")
     print(f"wrote {out}")
     if args.json:
-        args.json.write_text(json.dumps({
+        from ._files import atomic_text
+
+        atomic_text(args.json, json.dumps({
             "scan": str(args.scan), "units": scan.units.as_log(), "coefficients_sd": fit.coefficients.tolist(),
             "pose": fit.pose.tolist(), "mahalanobis": fit.mahalanobis,
             "residual_mean_mm": fit.residual_mean, "residual_max_mm": fit.residual_max,
             "surface_mean_mm": fit.surface_mean, "surface_max_mm": fit.surface_max,
-        }, indent=1))
+        }, indent=1), HortishapeError)
     return 0
 
 

@@ -106,7 +106,7 @@ def _landmark_dict(value, where: str) -> dict[str, np.ndarray]:
 
 def _read_json(path: Path):
     try:
-        return json.loads(path.read_text())
+        return json.loads(path.read_text(encoding="utf-8-sig"))  # a BOM, as Windows editors write
     except OSError as exc:
         raise HortishapeError(f"{path}: cannot read ({exc.strerror or exc})") from None
     except ValueError as exc:
@@ -175,7 +175,7 @@ def read_landmarks(path) -> dict[str, dict[str, np.ndarray]]:
 
 def _read_landmark_csv(p: Path) -> dict[str, dict[str, np.ndarray]]:
     try:
-        text = p.read_text()
+        text = p.read_text(encoding="utf-8-sig")  # "CSV UTF-8" from Excel starts with a BOM
     except OSError as exc:
         raise HortishapeError(f"{p}: cannot read ({exc.strerror or exc})") from None
     lines = [line for line in text.splitlines() if line.strip() and not line.lstrip().startswith("#")]

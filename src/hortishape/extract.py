@@ -2288,7 +2288,7 @@ def extract_file(source, out_dir, *, level: float | None = None, smoothing: int 
         fingerprint = _settings(options)
         if ply.is_file() and log_path.is_file() and (png.is_file() or not picture):
             try:
-                log = json.loads(log_path.read_text())
+                log = json.loads(log_path.read_text(encoding="utf-8"))
             except (OSError, ValueError):
                 log = {}
             if log.get("source_sha256") == digest and log.get("fingerprint") == fingerprint:
@@ -2333,7 +2333,7 @@ def extract_file(source, out_dir, *, level: float | None = None, smoothing: int 
         }
         # the log last: with the right fingerprint it marks the volume done
         with atomic_path(log_path, VolumeError) as tmp:
-            tmp.write_text(json.dumps(log, indent=1))
+            tmp.write_text(json.dumps(log, indent=1), encoding="utf-8")
         return _result(stem, source, log, ply, png if picture else None, resumed=False)
     except HortishapeError as exc:
         msg = str(exc)

@@ -242,7 +242,7 @@ def _done_before(ply: Path, log_path: Path, fingerprint: str, digest: str) -> di
     if not (ply.is_file() and log_path.is_file()):
         return None
     try:
-        log = json.loads(log_path.read_text())
+        log = json.loads(log_path.read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return None
     if log.get("fingerprint") != fingerprint or log.get("source_sha256") != digest:
@@ -941,7 +941,7 @@ def _orientation_consensus(files: dict, layout: ModelDir, register_paths, cfg: R
     logs = {}
     for i, p in enumerate(paths):
         try:
-            logs[i] = json.loads(files[p].with_suffix(".json").read_text())
+            logs[i] = json.loads(files[p].with_suffix(".json").read_text(encoding="utf-8"))
         except (OSError, ValueError):
             logs[i] = {}
         scores = np.sort(np.asarray(logs[i].get("orientation_scores") or [], dtype=np.float64))
@@ -1128,7 +1128,7 @@ def update_model(
     from .model import ShapeModel
 
     try:
-        before = json.loads(src.summary.read_text())
+        before = json.loads(src.summary.read_text(encoding="utf-8"))
         old_names = [str(n) for n in before["instances"]]
         scaling = bool(before["procrustes"]["scaling"])
     except (OSError, ValueError, KeyError, TypeError) as exc:

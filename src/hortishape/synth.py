@@ -1187,7 +1187,7 @@ def write_instance(instance: SyntheticInstance, out_dir, *, random_seed: int | N
         "arrays": npz_path.name,
     }
     with atomic_path(json_path, HortishapeError) as tmp:
-        tmp.write_text(json.dumps(truth, indent=2))
+        tmp.write_text(json.dumps(truth, indent=2), encoding="utf-8")
     with atomic_path(npz_path, HortishapeError) as tmp, open(tmp, "wb") as fh:
         np.savez_compressed(fh, canonical=instance.canonical.astype(np.float32), parts=instance.parts)
     for folder, vol in (("volumes", instance.volume), (MRI_FOLDER, instance.mri_volume)):
@@ -1331,7 +1331,7 @@ def read_truth(mesh_path) -> dict:
     json_path, npz_path = _truth_paths(Path(mesh_path))
     if not json_path.is_file() or not npz_path.is_file():
         raise HortishapeError(f"{mesh_path}: no ground truth beside it ({json_path.name}, {npz_path.name})")
-    truth = json.loads(json_path.read_text())
+    truth = json.loads(json_path.read_text(encoding="utf-8"))
     with np.load(npz_path) as z:
         truth["canonical"] = z["canonical"].astype(np.float64)
         truth["parts"] = z["parts"]

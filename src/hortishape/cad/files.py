@@ -159,7 +159,7 @@ def write_cad(path: str | os.PathLike, surface: BSplineSurface) -> Path:
     kind = _cad_kind(target)
     if kind == "json":
         with atomic_path(target, HortishapeError) as tmp:
-            tmp.write_text(json.dumps(surface.to_dict(), indent=1))
+            tmp.write_text(json.dumps(surface.to_dict(), indent=1), encoding="utf-8")
         return target
     _occ()
     shape = _occ_shape(surface)
@@ -281,7 +281,7 @@ def read_cad(path: str | os.PathLike) -> BSplineSurface:
     check_not_empty(target, HortishapeError)
     if kind == "json":
         try:
-            data = json.loads(target.read_text())
+            data = json.loads(target.read_text(encoding="utf-8"))
         except (UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise HortishapeError(f"{target}: not a JSON file ({exc})") from None
         return BSplineSurface.from_dict(data, name=str(target))
