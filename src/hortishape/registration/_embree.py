@@ -1,10 +1,9 @@
 """Embree through its C interface (ctypes), for a ray scene that is built once and queried once or twice.
 
 ``embreex`` copies a mesh into Embree one element at a time through Python
-indexing: for the reference's 60,000 faces that takes about 50 ms, against
-about 8 ms for Embree's own tree build. Filter (c) builds a scene of the
-deformed source in every fine iteration and queries it once, so the copy
-dominates it. Here Embree reads the numpy arrays in place (shared buffers)
+indexing, which takes several times as long as Embree's own tree build
+(docs/design-notes.md). Filter (c) builds a scene of the deformed source in
+every fine iteration and queries it once, so the copy dominates it. Here Embree reads the numpy arrays in place (shared buffers)
 and rays go in packets of 16 (``rtcIntersect16``); the library is the one
 ``embreex`` ships, so the hits are the same. A query holds Python's lock
 between packets, so it runs on one core: for a scene queried many times
