@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..mesh import Mesh
-from ..surface import vertex_normals
+from ..surface import barycentric_interpolate, vertex_normals
 from ._embree import PacketScene
 from ._embree import library as _embree_library
 from .config import CROSSING_MIN_EDGES, RegistrationConfig
@@ -173,16 +173,11 @@ class RayScene:
         barycentric : (k, 3) float64 ndarray
             Barycentric coordinates of the hit in its face (zeros for a miss).
         """
-        face, t, bary, _ = self._first_hit(origins, directions, max_distance)
-        return face, t, bary
-
-    def _first_hit(self, origins, directions, max_distance=None):
-        """:meth:`first_hit`, and the vertices (k, 3) of the face each ray hit (any face's where ``face`` is -1)."""
         o = np.asarray(origins, dtype=np.float64)
         d = np.asarray(directions, dtype=np.float64)
         k = len(o)
         if k == 0:
-            return np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3), np.int64)
+            return np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 3))
         if self._scene is not None or self._packets is not None:
             dists = None
             if max_distance is not None:
@@ -203,9 +198,7 @@ class RayScene:
         hit = face >= 0
         if not hit.all():
             bary[~hit] = 0.0
-        # np.take gathers rows about twice as fast as fancy indexing
-        tri = np.take(self.faces, np.maximum(face, 0), axis=0)
-        p = _interpolate(self.vertices, tri, bary)
+        p = barycentric_interpolate(self.vertices, self.faces, np.maximum(face, 0), bary)
         # distance along the ray, recomputed in float64
         t = np.einsum("kd,kd->k", p - o, d)
         t[~hit] = np.inf
@@ -214,12 +207,7 @@ class RayScene:
             face[beyond] = -1
             t[beyond] = np.inf
             bary[beyond] = 0.0
-        return face, t, bary, tri
-
-
-def _interpolate(values: np.ndarray, tri: np.ndarray, bary: np.ndarray) -> np.ndarray:
-    """``values`` (n, 3) at barycentric points ``bary`` (k, 3) of the faces ``tri`` (k, 3)."""
-    return np.einsum("kj,kjd->kd", bary, np.take(values, tri, axis=0))
+        return face, t, bary
 
 
 @dataclass(frozen=True, eq=False)
@@ -453,7 +441,7 @@ def find_correspondences(
 
     def cast(rows, limit=None) -> None:
         """Rays ``rows`` (a slice or indices) against the target, filters (a) and (b)."""
-        face, tr, bary, tri = tgt.scene._first_hit(origins[rows], dirs[rows], max_distance=limit)
+        face, tr, bary = tgt.scene.first_hit(origins[rows], dirs[rows], max_distance=limit)
         hit = face >= 0
         if tgt.filled is not None and not tgt.patch_data:
             # a hole's patch is no data: the ray found nothing (it stops there, as at the scan's hole)
@@ -462,7 +450,7 @@ def find_correspondences(
             hit &= ~patch
         # a hit "behind" the origin by round-off counts as distance 0
         t[rows] = np.where(hit, np.maximum(tr, 0.0), np.inf)
-        nn = _interpolate(tgt.normals, tri, bary)
+        nn = barycentric_interpolate(tgt.normals, tgt.mesh.faces, np.maximum(face, 0), bary)
         if not hit.all():
             nn[~hit] = 0.0
         nrm = np.linalg.norm(nn, axis=1, keepdims=True)
