@@ -583,6 +583,23 @@ def test_taper_step_recovers_a_known_taper():
     np.testing.assert_allclose(out, target, atol=1e-9)
 
 
+@pytest.mark.parametrize("beta, coarse", [(1.0, False), (8.0, True), (0.1, False)])
+def test_elastic_solve_matches_a_direct_solve(template, beta, coarse):
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as sla
+
+    from hortishape.registration.elastic import _solve_pcg
+
+    lap = template.level("fine").laplacian
+    n = lap.shape[0]
+    rng = np.random.default_rng(3)
+    w = (rng.random(n) > 0.05).astype(float)  # a few vertices without a correspondence
+    rhs = np.where(w[:, None] > 0, rng.normal(size=(n, 3)) * [1.0, 0.5, 0.01], 0.0)
+    exact = sla.splu(((beta * beta) * lap + sp.diags(w)).tocsc()).solve(rhs)
+    x = _solve_pcg(lap, beta, w, rhs, rhs, tol=1e-8, prolong=template.prolongation() if coarse else None)
+    assert np.abs(x - exact).max() < 1e-6 * np.abs(exact).max()
+
+
 def test_orientation_search_does_not_depend_on_the_reference_resolution():
     # The search's stiffness is set for a 30,000-vertex reference whatever the
     # reference's own count. When it was defined at the reference's own

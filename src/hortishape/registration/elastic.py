@@ -41,7 +41,13 @@ def _solve_pcg(
     tol: float = 1e-6,
     prolong: sp.csr_matrix | None = None,
 ) -> np.ndarray:
-    """Solve (beta^2 L + W) X = rhs by preconditioned block CG, warm-started at x0.
+    """Solve (beta^2 L + W) X = rhs by preconditioned conjugate gradients, warm-started at x0.
+
+    The three columns of X are solved as one vector of the block-diagonal
+    system ``I_3 (x) A``: one step length for all three, so that every
+    vector update runs over one contiguous array (a third less time than a
+    step length per column, whose updates broadcast over rows of three).
+    The iterations stop when ``|rhs - A X| <= tol |rhs|`` over all columns.
 
     The preconditioner is Jacobi plus, when ``prolong`` (fine <- coarse
     barycentric interpolation) is given, an exact coarse-grid correction with
@@ -49,8 +55,8 @@ def _solve_pcg(
     needs ~170 iterations at beta = 8 on 30k vertices; the coarse correction
     removes the smooth error components that make it slow at high beta.
     """
-    a = ((beta * beta) * lap + sp.diags(w)).tocsr()
-    dinv = 1.0 / a.diagonal()
+    a = _system(lap, beta, w)
+    dinv = np.repeat(1.0 / a.diagonal(), rhs.shape[1]).reshape(rhs.shape)
     coarse_solve = None
     if prolong is not None:
         from cholespy import CholeskySolverD, MatrixType
@@ -66,32 +72,42 @@ def _solve_pcg(
             solver.solve(np.ascontiguousarray(pt @ r), xc)
             return prolong @ xc
 
-    def precondition(r: np.ndarray) -> np.ndarray:
-        z = r * dinv[:, None]
+    def precondition(r: np.ndarray, out: np.ndarray) -> np.ndarray:
+        np.multiply(r, dinv, out=out)
         if coarse_solve is not None:
-            z += coarse_solve(r)
-        return z
+            out += coarse_solve(r)
+        return out
 
-    x = x0.copy()
+    x = np.array(x0, dtype=np.float64, order="C")
     r = rhs - a @ x
-    z = precondition(r)
+    z = precondition(r, np.empty_like(r))
     p = z.copy()
-    rz = np.einsum("ij,ij->j", r, z)
-    bnorm = np.linalg.norm(rhs, axis=0)
-    bnorm[bnorm == 0] = 1.0
-    stop = (tol * bnorm) ** 2
+    rz = float(np.vdot(r, z))
+    stop = (tol * max(float(np.linalg.norm(rhs)), 1e-300)) ** 2
     for _ in range(5000):
-        if (np.einsum("ij,ij->j", r, r) <= stop).all():
+        if float(np.vdot(r, r)) <= stop:
             break
         ap = a @ p
-        alpha = rz / np.maximum(np.einsum("ij,ij->j", p, ap), 1e-300)
+        alpha = rz / max(float(np.vdot(p, ap)), 1e-300)
         x += alpha * p
         r -= alpha * ap
-        z = precondition(r)
-        rz_new = np.einsum("ij,ij->j", r, z)
-        p = z + (rz_new / np.maximum(rz, 1e-300)) * p
+        precondition(r, z)
+        rz_new = float(np.vdot(r, z))
+        p *= rz_new / max(rz, 1e-300)
+        p += z
         rz = rz_new
     return x
+
+
+def _system(lap: sp.csr_matrix, beta: float, w: np.ndarray) -> sp.csr_matrix:
+    """``beta^2 L + diag(w)``, in ``L``'s sparsity pattern when it holds the whole diagonal (it does for a mesh's Laplacian)."""
+    rows = np.repeat(np.arange(lap.shape[0]), np.diff(lap.indptr))
+    diag = np.flatnonzero(lap.indices == rows)
+    if len(diag) != lap.shape[0]:
+        return ((beta * beta) * lap + sp.diags(w)).tocsr()
+    data = (beta * beta) * lap.data
+    data[diag] += w
+    return sp.csr_matrix((data, lap.indices, lap.indptr), shape=lap.shape)
 
 
 @dataclass
