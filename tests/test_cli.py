@@ -175,6 +175,9 @@ def test_tolerance_options_reach_the_configuration():
     assert _registration_config(sub.parse_args(["ref.ply", "a.ply", "--out", "o"])).move_tolerance == 0.05
     moved = sub.parse_args(["ref.ply", "a.ply", "--out", "o", "--move-tolerance", "0"])
     assert _registration_config(moved).move_tolerance == 0.0
+    assert _registration_config(moved).local_tail
+    whole = sub.parse_args(["ref.ply", "a.ply", "--out", "o", "--whole-tail"])
+    assert not _registration_config(whole).local_tail
 
 
 def test_convert_and_sample_take_a_model_scalismo_wrote(tmp_path, capsys):

@@ -455,6 +455,47 @@ def test_folded_triangles_are_repaired(template):
     np.testing.assert_allclose(fixed, placed, atol=1e-9)
 
 
+def test_local_tail_ends_where_iterating_the_whole_surface_ends():
+    # a noisy banana whose stalk tip still reaches for the scan's when the
+    # rest has stopped: only the tip and its neighbours are iterated on, and
+    # the surface and the tip's landing are those of moving all of it
+    ref, tgt, template = _synthetic_pair("banana", 1000, 1002, 6000)
+    rng = np.random.default_rng(3)
+    n = vertex_normals(tgt.mesh.vertices, tgt.mesh.faces)
+    noisy = Mesh(tgt.mesh.vertices + n * rng.normal(0.0, 0.1, (len(n), 1)), tgt.mesh.faces)
+    cp = closest_points(template.mesh, ref.landmarks["stalk_tip"][None])
+    runs = {local: _register_quietly(template, noisy, RegistrationConfig(local_tail=local)) for local in (False, True)}
+    levels = {k: [r.level for r in reg.log] for k, reg in runs.items()}
+    assert "local" not in levels[False] and "local" in levels[True]
+    assert levels[True].count("fine") < levels[False].count("fine")
+    assert runs[True].converged
+    assert np.linalg.norm(runs[True].vertices - runs[False].vertices, axis=1).mean() < 0.01
+    tips = [barycentric_interpolate(r.vertices, r.faces, cp.face_index, cp.barycentric)[0] for r in runs.values()]
+    errors = [np.linalg.norm(tip - tgt.landmarks["stalk_tip"]) for tip in tips]
+    assert max(errors) < 1.0 and abs(errors[0] - errors[1]) < 0.1, errors
+
+
+def test_a_local_iteration_moves_only_its_vertices(template, dense):
+    from hortishape.registration.correspondences import prepare_target
+    from hortishape.registration.elastic import _grown, _iterate_local, _State
+
+    fine = template.level("fine")
+    seeds = np.zeros(len(fine.vertices), dtype=bool)
+    seeds[np.argmax(fine.vertices[:, 2])] = True
+    active = _grown(fine, seeds, 2)
+    # two rings: the vertex, its neighbours and theirs
+    ring1 = np.unique(fine.faces[(fine.faces == np.argmax(fine.vertices[:, 2])).any(axis=1)])
+    ring2 = np.unique(fine.faces[np.isin(fine.faces, ring1).any(axis=1)])
+    assert active.tolist() == ring2.tolist()
+    target = prepare_target(Mesh(dense.vertices * 1.02, dense.faces))
+    state = _State(fine.vertices.copy(), np.eye(4), prev_distance=1.0)
+    d, kept = _iterate_local(fine, state, target, 1.0, RegistrationConfig(), active)
+    still = np.setdiff1d(np.arange(len(fine.vertices)), active)
+    assert np.array_equal(state.positions[still], fine.vertices[still])
+    assert kept == 1.0 and 0.0 < d < 2.0
+    assert (np.linalg.norm(state.positions[active] - fine.vertices[active], axis=1) > 0).all()
+
+
 def test_distance_floor_lets_an_overshooting_stalk_tip_land():
     # The reference banana's stalk ends beyond the target's. Once the rest of
     # the surface sits on the scan, 20 x d_t is a few hundredths of a

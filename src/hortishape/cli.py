@@ -335,6 +335,11 @@ def _add_registration_options(p) -> None:
                    help="or when no vertex moved more than this many reference edge lengths in each of the "
                         "last two iterations (the surface has stopped but for following a scan's noise; "
                         "0: off)")
+    g.add_argument("--whole-tail", action="store_true",
+                   help="after the schedule, move the whole surface in every iteration, as the paper does "
+                        "(default: once no more than 1 %% of it still moves, only that part and its "
+                        "neighbours: the same surface to hundredths of a millimetre, sooner on a noisy "
+                        "scan; docs/design-notes.md)")
     g.add_argument("--orientation", choices=["axis", "search", "pca", "none"], default="axis",
                    help="initial alignment: put the reference's axis of revolution on the scan's, cavity "
                         "(stalk) end on cavity end, and keep the best turn about it after a short elastic "
@@ -361,6 +366,7 @@ def _registration_config(args):
             max_angle=args.max_angle, distance_factor=args.distance_factor,
             distance_floor=args.distance_floor, tolerance=args.tolerance,
             edge_tolerance=args.edge_tolerance, move_tolerance=args.move_tolerance,
+            local_tail=not args.whole_tail,
             max_iterations=max(50, args.iterations + 20), orientation=args.orientation, warp=args.warp,
             up=None if args.up is None else tuple(args.up),
         )

@@ -83,6 +83,17 @@ LOBED = 0.015
 #: the result of one badly registered zucchini, where short rays do cross.
 CROSSING_MIN_EDGES = 0.5
 
+#: Once the stiffness schedule has ended and at most this share of the fine
+#: level's vertices moved more than ``move_tolerance`` edge lengths in an
+#: iteration, the iterations go on only round those vertices (``local_tail``):
+#: the rest of the surface has stopped, bar its approach to a noisy scan's
+#: noise, which the closing step makes anyway.
+LOCAL_SHARE = 0.01
+#: The vertices still moving, grown by this many rings of neighbours, are
+#: the ones a local iteration moves; the rest hold still. At the last
+#: stiffness (beta = 1 edge) a step spreads over about two rings.
+LOCAL_RINGS = 4
+
 #: A scan with holes (a structured-light scan where the scanner did not see)
 #: is registered onto its holes closed by smooth patches
 #: (:func:`hortishape.surface.fill_holes`); patches larger than this share
@@ -207,6 +218,15 @@ class RegistrationConfig:
         keeps d_t falling (the closing step ``final_beta`` lands it). A stalk
         tip still reaching for the scan's moves more, and keeps the
         iterations going. ``0`` turns the test off.
+    local_tail : bool, default: True
+        After the schedule, once no more than ``LOCAL_SHARE`` of the
+        vertices still move (see ``move_tolerance``), iterate only round
+        them (``LOCAL_RINGS``): rays, filters and eq. 8 on that part, the
+        rest held still, until it stops too. On a noisy scan the whole
+        surface would otherwise go on fitting the noise for ten or more
+        iterations while a stalk tip finishes its way (measurements:
+        ``docs/design-notes.md``). ``False``: every iteration moves the
+        whole surface, as in the paper. Landmarks turn it off.
     max_iterations : int, default: 50
         Cap on the total number of iterations (schedule + convergence).
     orientation : {"axis", "search", "pca", "none"}, default: "axis"
@@ -354,6 +374,7 @@ class RegistrationConfig:
     tolerance: float = 1e-3
     edge_tolerance: float = 1e-3
     move_tolerance: float = 0.05
+    local_tail: bool = True
     max_iterations: int = 50
     orientation: str = "axis"
     end_contrast: float = 0.15

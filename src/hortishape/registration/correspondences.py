@@ -399,6 +399,7 @@ def find_correspondences(
     max_distance: float = np.inf,
     check_crossings: bool = True,
     crossing_min_distance: float = 0.0,
+    sources: np.ndarray | None = None,
 ) -> Correspondences:
     """Array-level core of :func:`correspond` (no input validation; hot path).
 
@@ -421,14 +422,18 @@ def find_correspondences(
         ray is that short, and skipping the test saves building the
         source's ray structure. When some hit is farther, every hit is
         tested (short rays do cross where a surface is crumpled).
+    sources : (k,) int ndarray, optional
+        Cast rays from these vertices only (``normals`` is still indexed by
+        vertex); the correspondences are theirs, in this order. Filter (c)
+        tests them against the whole surface.
 
     Returns
     -------
     Correspondences
     """
     tgt = target
-    sv = vertices
-    sn = normals
+    sv = vertices if sources is None else np.take(vertices, sources, axis=0)
+    sn = normals if sources is None else np.take(normals, sources, axis=0)
     n = len(sv)
     cos_max = np.cos(np.radians(max_angle))
 
@@ -464,7 +469,7 @@ def find_correspondences(
         """Filter (c): kept hits behind a crossing of the source."""
         cand = rows[status[rows] == KEPT]
         # start a little off the surface so the vertex's own faces are not hit
-        eps = 1e-4 * _scale(sv)
+        eps = 1e-4 * _scale(vertices)
         d = np.take(dirs, cand, axis=0)
         # a source hit counts only before the target's: the rays stop there (a short query is cheaper)
         _, ts, _ = scene.first_hit(np.take(origins, cand, axis=0) + eps * d, d, max_distance=t[cand] - eps)
@@ -477,7 +482,7 @@ def find_correspondences(
     cast(slice(n, 2 * n), limit)
     cand = np.flatnonzero(status == KEPT)
     if check_crossings and len(cand) and t[cand].max() > crossing_min_distance:
-        scene = RayScene(sv, faces, few_queries=True)
+        scene = RayScene(vertices, faces, few_queries=True)
         flag_crossings(scene, cand)
         # an outward hit rejected here cut its inward ray short: cast it in full
         redo = np.flatnonzero((status[:n] == CROSSING) & np.isfinite(limit)) + n

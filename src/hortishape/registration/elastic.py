@@ -17,8 +17,9 @@ import scipy.sparse as sp
 from ..align import apply_transform, rigid_fit, rigid_transform, rotation_about
 from ..errors import MeshError
 from ..surface import barycentric_interpolate
-from .config import COARSE_ANGLE_SLACK, COARSE_MIN_BETA, RegistrationConfig
-from .correspondences import TargetSurface, _match, _max_distance
+from ..surface import vertex_normals
+from .config import COARSE_ANGLE_SLACK, COARSE_MIN_BETA, CROSSING_MIN_EDGES, LOCAL_RINGS, LOCAL_SHARE, RegistrationConfig
+from .correspondences import TargetSurface, _match, _max_distance, find_correspondences
 from .folds import _unfold_step
 from .template import Template, _Level
 
@@ -172,6 +173,48 @@ def _iterate(
     return d_t, kept
 
 
+def _iterate_local(level: _Level, state: _State, target: TargetSurface, beta: float, cfg: RegistrationConfig,
+                   active: np.ndarray) -> tuple[float, float]:
+    """One RN-ICP-T iteration that moves only the vertices ``active`` (indices), in place on ``state``.
+
+    The rest of the surface holds still: it is eq. 8 restricted to
+    ``active`` with zero displacement around it. Rays, filters (a)-(c) as
+    in :func:`_iterate` (filter (c) against the whole surface); no global
+    step. Returns (mean distance of the active vertices' correspondences,
+    their kept fraction); ``state.prev_distance`` (filter (b)) stays the
+    whole surface's.
+    """
+    pos = state.positions
+    inside = np.zeros(len(pos), dtype=bool)
+    inside[active] = True
+    touching = level.faces[inside[level.faces].any(axis=1)]
+    normals = vertex_normals(pos, touching)  # exact at the active vertices: all their faces are there
+    corr = find_correspondences(
+        pos, level.faces, normals, target, max_angle=cfg.max_angle,
+        max_distance=_max_distance(cfg, state.prev_distance, level), check_crossings=cfg.check_crossings,
+        crossing_min_distance=CROSSING_MIN_EDGES * level.edge_length, sources=active,
+    )
+    found = corr.found
+    if not found.any():
+        return np.inf, 0.0
+    sub = level.laplacian[active][:, active]
+    rhs = np.where(found[:, None], corr.points - pos[active], 0.0)
+    x = _solve_pcg(sub.tocsr(), beta, found.astype(np.float64), rhs, rhs, tol=1e-4)
+    moved = pos.copy()
+    moved[active] += x
+    state.positions = moved
+    return corr.mean_distance, corr.kept_fraction
+
+
+def _grown(level: _Level, seeds: np.ndarray, rings: int) -> np.ndarray:
+    """The vertices within ``rings`` edges of the boolean mask ``seeds`` (indices, sorted)."""
+    lap = level.laplacian  # its pattern is the vertex adjacency (and the diagonal)
+    mask = seeds.copy()
+    for _ in range(rings):
+        mask = ((lap @ mask.astype(np.float64)) != 0) | mask
+    return np.flatnonzero(mask)
+
+
 def _anchored(found: np.ndarray, points: np.ndarray, anchors) -> tuple[np.ndarray, np.ndarray]:
     """Correspondences with the landmark pairs put in (copies; the same arrays without anchors)."""
     if anchors is None:
@@ -300,9 +343,28 @@ def _deform(template: Template, target: TargetSurface, base_c: np.ndarray, base_
     it = 0
     prev_d = np.inf
     still = 0  # successive fine iterations in which no vertex moved more than move_tolerance edges
+    moving_at = cfg.move_tolerance * fine.edge_length
+    local = cfg.local_tail and cfg.move_tolerance > 0 and anchors.get("fine") is None
+    active = None  # the vertices the local tail moves, once it has begun
     while it < cfg.max_iterations:
         t_it = time.perf_counter()
         beta = betas[it] if it < len(betas) else cfg.beta_end
+        if active is not None:
+            before = state.positions
+            d_t, kept = _iterate_local(fine, state, target, beta, cfg, active)
+            record(it, "local", beta, d_t, kept, t_it)
+            it += 1
+            moving = np.zeros(len(before), dtype=bool)
+            moving[active] = np.linalg.norm(state.positions[active] - before[active], axis=1) >= moving_at
+            if moving.any():
+                still = 0
+                active = _grown(fine, moving, LOCAL_RINGS)
+            else:
+                still += 1
+                if still >= 2:
+                    converged = True
+                    break
+            continue
         if level_name == "coarse" and beta * ratio < COARSE_MIN_BETA:
             # switch to the full-resolution reference for the elastic end game
             state = _State(_coarse_to_fine(template, state, base_c, base_f), state.transform, state.prev_distance)
@@ -329,9 +391,10 @@ def _deform(template: Template, target: TargetSurface, base_c: np.ndarray, base_
                 "(are the surfaces far apart or in different units?)"
             )
         it += 1
+        moving = None
         if before is not None:
-            moved = float(np.sqrt(((state.positions - before) ** 2).sum(axis=1).max()))
-            still = still + 1 if moved < cfg.move_tolerance * fine.edge_length else 0
+            moving = np.einsum("ij,ij->i", state.positions - before, state.positions - before) >= moving_at**2
+            still = 0 if moving.any() else still + 1
         if it >= len(betas) and np.isfinite(prev_d):
             change = abs(d_t - prev_d)
             # the paper's relative test, or a change below `edge_tolerance`
@@ -341,6 +404,9 @@ def _deform(template: Template, target: TargetSurface, base_c: np.ndarray, base_
             if change < cfg.tolerance * d_t or change < cfg.edge_tolerance * fine.edge_length or still >= 2:
                 converged = True
                 break
+            if local and moving is not None and moving.any() and moving.mean() <= LOCAL_SHARE:
+                # the rest has stopped: go on only where the surface still moves (`local_tail`)
+                active = _grown(fine, moving, LOCAL_RINGS)
         prev_d = d_t
     if level_name == "coarse":  # only if the schedule never reached fine stiffness
         state = _State(_coarse_to_fine(template, state, base_c, base_f), state.transform, state.prev_distance)

@@ -18,7 +18,8 @@ class IterationRecord:
     iteration : int
         0-based iteration number (orientation search not counted).
     level : str
-        ``"coarse"``, ``"fine"`` or ``"final"`` (the closing step).
+        ``"coarse"``, ``"fine"``, ``"local"`` (``local_tail``: only the part of the
+        fine level still moving) or ``"final"`` (the closing step).
     beta : float
         Stiffness, on the reference's scale.
     mean_distance : float
