@@ -3,7 +3,8 @@
 Eq. 8, ``(beta^2 M^T M + W) X = W (T - S)``, is solved by a sparse LDL^T
 factorisation on the coarse level and by warm-started, Jacobi-preconditioned
 conjugate gradients (with a coarse-grid correction while ``beta`` is high)
-on the fine one.
+on the fine one. After the schedule, once few vertices still move, the
+iterations go on round those alone (``local_tail``, :func:`_iterate_local`).
 """
 
 from __future__ import annotations
@@ -16,9 +17,15 @@ import scipy.sparse as sp
 
 from ..align import apply_transform, rigid_fit, rigid_transform, rotation_about
 from ..errors import MeshError
-from ..surface import barycentric_interpolate
-from ..surface import vertex_normals
-from .config import COARSE_ANGLE_SLACK, COARSE_MIN_BETA, CROSSING_MIN_EDGES, LOCAL_RINGS, LOCAL_SHARE, RegistrationConfig
+from ..surface import barycentric_interpolate, vertex_normals
+from .config import (
+    COARSE_ANGLE_SLACK,
+    COARSE_MIN_BETA,
+    CROSSING_MIN_EDGES,
+    LOCAL_RINGS,
+    LOCAL_SHARE,
+    RegistrationConfig,
+)
 from .correspondences import TargetSurface, _match, _max_distance, find_correspondences
 from .folds import _unfold_step
 from .template import Template, _Level
@@ -46,8 +53,8 @@ def _solve_pcg(
 
     The three columns of X are solved as one vector of the block-diagonal
     system ``I_3 (x) A``: one step length for all three, so that every
-    vector update runs over one contiguous array (a third less time than a
-    step length per column, whose updates broadcast over rows of three).
+    vector update runs over one contiguous array (a step length per column
+    broadcasts over rows of three, which is slow; see the design notes).
     The iterations stop when ``|rhs - A X| <= tol |rhs|`` over all columns.
 
     The preconditioner is Jacobi plus, when ``prolong`` (fine <- coarse
@@ -324,7 +331,8 @@ def _deform(template: Template, target: TargetSurface, base_c: np.ndarray, base_
             cfg: RegistrationConfig, anchors: dict, record) -> tuple[_State, bool, int]:
     """RN-ICP-T iterations from the placed reference (``base_c``, ``base_f``) along the stiffness schedule.
 
-    Stiff iterations run on the coarse level, the rest on the fine one;
+    Stiff iterations run on the coarse level, the rest on the fine one, the
+    last of them only where the surface still moves (``local_tail``);
     ``record(iteration, level, beta, d_t, kept, start_time)`` logs each.
     Returns the fine level's state, whether the convergence test passed, and
     the number of iterations.
