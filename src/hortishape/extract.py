@@ -201,6 +201,8 @@ FRUIT_EXTENT_MM = (10.0, 600.0)
 SLICE_ANISOTROPY = 1.25
 SLICE_QUANTILE = 0.1
 SLICE_SHARE = 0.5
+#: Integer voxels: the surface is meshed at least this far (intensity units) from an integer value.
+ISO_OFF_INTEGER = 0.05
 
 
 # --------------------------------------------------------------------------
@@ -1171,6 +1173,16 @@ def _surface_genus(n_vertices: int, n_faces: int) -> int:
     return (2 - (n_vertices - n_faces // 2)) // 2
 
 
+def _off_integers(level: float) -> float:
+    """``level`` kept at least ``ISO_OFF_INTEGER`` intensity units from an integer: integer voxels
+    equal to the level would put vertices on them (degenerate faces). The voxels above it stay the
+    same, and the surface keeps the level's place between integers: in an 8-bit MRI volume, whose
+    edge rises some 20 units, half a unit moves the surface by a share of a pixel that matters
+    (design notes)."""
+    whole = math.floor(level)
+    return whole + min(max(level - whole, ISO_OFF_INTEGER), 1.0 - ISO_OFF_INTEGER)
+
+
 def _check_options(smoothing, target_vertices, support_radius) -> None:
     if isinstance(smoothing, bool) or not isinstance(smoothing, (int, np.integer)) or smoothing < 0:
         raise ValueError(f"smoothing must be a whole number of iterations, 0 or more, got {smoothing!r}")
@@ -1714,9 +1726,8 @@ def extract_surface(
         Iso level in the volume's intensity units; voxels above it are
         inside. Default: on the boundary between the background and the
         outermost tissue (:func:`intensity_levels`). For integer voxels the
-        surface is meshed at ``floor(level) + 0.5``, which leaves every voxel
-        on its side (a shift of at most 0.5 intensity units, about a
-        thousandth of a voxel for CT contrasts) and puts no vertex on a voxel.
+        surface is meshed at the level kept ``ISO_OFF_INTEGER`` from an
+        integer, so that no vertex falls on a voxel.
     smoothing : int, default: 10
         Iterations of :func:`taubin_smooth` (0: none). Removes the scanner
         noise from the surface without shrinking it.
@@ -1773,8 +1784,7 @@ def extract_surface(
     levels = intensity_levels(vol, level=level, name=name)
     iso, seg_iso = levels.level, levels.segment
     if vol.data.dtype.kind in "biu":
-        # the same voxels above them; no vertex on a voxel
-        iso, seg_iso = math.floor(iso) + 0.5, math.floor(seg_iso) + 0.5
+        iso, seg_iso = _off_integers(iso), _off_integers(seg_iso)
     inside_value, outside_value = _fill_values(levels)
 
     def mesh_product(at: float):
@@ -2237,7 +2247,7 @@ def _settings(options: dict) -> str:
                                      sort_keys=True, default=list).encode()).hexdigest()
 
 
-_CONSTANT_PREFIXES = ("GAPS_", "ENCLOSED_", "SUPPORT_", "OUTER_", "PIT_", "SLICE_")
+_CONSTANT_PREFIXES = ("GAPS_", "ENCLOSED_", "SUPPORT_", "OUTER_", "PIT_", "SLICE_", "ISO_")
 
 
 def extract_file(source, out_dir, *, level: float | None = None, smoothing: int = 10,
