@@ -731,6 +731,7 @@ def test_strong_noise_leaves_one_surface():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ExtractionWarning)
         ext = extract_surface(noisy)
+    assert all(a["level"] == ext.attempts[0]["level"] for a in ext.attempts)
     check_closed_surface(ext.mesh)  # one component
     assert ext.genus == 0
     assert ext.volume == pytest.approx(signed_volume(inst.mesh.vertices, inst.mesh.faces), rel=0.01)
@@ -798,4 +799,3 @@ def test_an_integer_volume_is_meshed_at_the_level_itself():
     assert extract._off_integers(30.0) == pytest.approx(30.0 + extract.ISO_OFF_INTEGER)
     assert extract._off_integers(30.999) == pytest.approx(31.0 - extract.ISO_OFF_INTEGER)
     assert extract._off_integers(30.3) == 30.3
-
