@@ -126,7 +126,9 @@ def test_a_worker_killed_mid_build_costs_only_its_task(cluster, scans, local, tm
     # once the first pass is under way, the second worker kills itself (and its nanny) while it runs a task:
     # deciding and killing in the worker's event loop means the scheduler cannot have its result yet
     deadline = time.time() + 300
-    while len(list((out / "work" / "first-pass").glob("*.json"))) < 2 and time.time() < deadline:
+    # (one result in: the registrations take a fraction of a second each, and after two the first
+    # pass could be over before the client below is connected)
+    while not any((out / "work" / "first-pass").glob("*.json")) and time.time() < deadline:
         time.sleep(0.05)
     from distributed import Client
 
@@ -143,10 +145,11 @@ def test_a_worker_killed_mid_build_costs_only_its_task(cluster, scans, local, tm
     assert not thread.is_alive() and "build" in result
     built = result["build"]
     assert built.names == local.names and built.skipped == ()
-    retried = [r for r in built.first_pass if r.attempts > 1]
+    retried = {(r.name, k + 1) for k, rs in enumerate((built.first_pass, built.second_pass))
+               for r in rs if r.attempts > 1}
     assert retried, "the killed worker was running a registration: it must have been run again"
     summary = json.loads((out / "summary.json").read_text())
-    assert {(r["name"], r["pass"]) for r in summary["retried"]} >= {(r.name, 1) for r in retried}
+    assert {(r["name"], r["pass"]) for r in summary["retried"]} >= retried
     # the same model as the local build's
     a, b = ShapeModel.load(local.model_path), ShapeModel.load(built.model_path)
     np.testing.assert_allclose(b.mean_, a.mean_, atol=1e-9)
