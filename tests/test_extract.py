@@ -659,6 +659,34 @@ def test_a_peel_broken_into_pieces_around_the_flesh_is_closed():
     assert ext.volume == pytest.approx(4 / 3 * np.pi * 24.0**3, rel=0.01)
 
 
+def test_flesh_segments_parted_by_dark_gaps_are_taken_whole():
+    # no peel to hold them together: twelve wedges, 1 mm apart, each one solid of genus 0;
+    # the largest wedge alone (an eighth of the fruit) was the product before
+    n = 64
+    x, y, z = grid(n) - (n - 1) / 2.0
+    angle = np.arctan2(y, x) % (np.pi / 6.0) - np.pi / 12.0
+    across = np.hypot(x, y) * np.abs(np.sin(angle))
+    ball = np.sqrt(x**2 + y**2 + z**2) - 25.0
+    with pytest.warns(ExtractionWarning, match="other pieces beside it"):
+        ext = extract_surface(ct(np.maximum(ball, 0.5 - across)))
+    assert ext.attempts[0]["genus"] == 0 and ext.attempts[0]["beside_voxels"] > 0
+    assert ext.genus == 0 and ext.attempts[-1]["beside_voxels"] == 0
+    assert ext.volume == pytest.approx(4 / 3 * np.pi * 25.0**3, rel=0.01)
+
+
+def test_separate_objects_side_by_side_keep_the_largest_with_a_warning():
+    # two balls 7 mm apart whose bounding boxes overlap: no gap up to BESIDE_GAP_MM joins
+    # them, so they are two objects, not one broken up
+    n = 96
+    p = grid(n)
+    big = np.sqrt(((p - np.array([30.0, 30.0, 48.0])[:, None, None, None]) ** 2).sum(axis=0)) - 18.0
+    small = np.sqrt(((p - np.array([59.0, 59.0, 48.0])[:, None, None, None]) ** 2).sum(axis=0)) - 16.0
+    with pytest.warns(ExtractionWarning, match="separate objects"):
+        ext = extract_surface(ct(np.minimum(big, small)))
+    assert ext.gap_mm == extract.BESIDE_GAP_MM and ext.genus == 0
+    assert ext.volume == pytest.approx(4 / 3 * np.pi * 18.0**3, rel=0.01)
+
+
 def test_gaps_closed_next_to_the_border_leave_no_cap():
     # the channel of test_a_narrow_channel_to_the_core_is_closed_over, 5 mm wide, with the
     # ball's top 1.5 mm from the volume's last plane: the box that closes the channel is

@@ -149,6 +149,16 @@ PIT_DEPTH = 0.25
 ENCLOSED_MIN_SHARE = 0.01
 #: How many of the largest other pieces are checked for that.
 ENCLOSED_CHECKED = 4
+#: Other solid pieces (each at least ``ENCLOSED_MIN_SHARE`` of the product)
+#: whose bounding boxes overlap the product's and that together hold at least
+#: this share of its voxels: the product broke up at the level (flesh segments
+#: parted by dark gaps, under a peel too thin or dim to hold them together),
+#: and a wider gap is tried, up to ``BESIDE_GAP_MM``: pieces still apart there are
+#: separate objects (the largest is kept, with a warning). Up to ``BESIDE_CHECKED``
+#: of the largest pieces are looked at.
+BESIDE_SHARE = 0.5
+BESIDE_GAP_MM = 2.0
+BESIDE_CHECKED = 32
 #: A support that takes more than this share of the voxels above the level
 #: is warned about; one that would leave less than ``1 - SUPPORT_REFUSE_SHARE``
 #: of them is the product itself: it is kept whole, with a warning.
@@ -807,6 +817,17 @@ class _Components:
             _grow_box(lo, hi, self.select(k, chosen), z0 - self.z_lo)
         return lo, hi
 
+    def boxes(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Bounding boxes ``(lo, hi)``, each ``(len(ids), 3)``, of the components ``ids``, in one pass."""
+        lo = np.full((len(ids), 3), np.iinfo(np.int64).max)
+        hi = np.zeros((len(ids), 3), dtype=np.int64)
+        for k, (z0, _) in enumerate(self.slabs):
+            labels = self.labels(k)
+            for i, c in enumerate(ids):
+                _grow_box(lo[i], hi[i], self.select(k, np.arange(len(self.size)) == c, labels=labels),
+                          z0 - self.z_lo)
+        return lo, hi
+
     def labels(self, k: int) -> np.ndarray:
         """The local labels of slab ``k``."""
         return self.stored[k].array()
@@ -1347,15 +1368,23 @@ class _Segmentation:
     support_refused: int
     genus: int
     enclosed: int  # other solid pieces inside the product's box or around it: the outside leaked in
+    beside: int = 0  # voxels of other pieces side by side with the product (BESIDE_SHARE): it broke up
     pit_mm: float = 0.0  # how deep the outside reaches beyond a big box's reach (NaN: not looked at)
     spacing_zyx: np.ndarray = None
     mesh_genus: int | None = None  # of the marched surface, when it was marched
     level: float = float("nan")  # that decided what is inside
 
-    def closed(self) -> bool:
-        """One solid of genus 0, around no other piece, without a narrow channel deep into it."""
+    @property
+    def n_solid(self) -> int:
+        return self.n_object + self.n_filled
+
+    def closed(self, *, alone: bool = True) -> bool:
+        """One solid of genus 0, around no other piece, without a narrow channel deep into it,
+        and (``alone``) with no pieces of its own size beside it that a gap up to
+        ``BESIDE_GAP_MM`` might join."""
         extent = float(np.min((self.hi - self.lo) * self.spacing_zyx))
-        return self.genus == 0 and not self.enclosed and self.pit_mm <= PIT_DEPTH * extent
+        return (self.genus == 0 and not self.enclosed and self.pit_mm <= PIT_DEPTH * extent
+                and not (alone and self.beside and self.gap_mm < BESIDE_GAP_MM))
 
 
 def _segment(data, iso: float, spacing_zyx, slabs, *, gap_mm: float, remove_support: bool,
@@ -1437,12 +1466,20 @@ def _segment(data, iso: float, spacing_zyx, slabs, *, gap_mm: float, remove_supp
         if fg.size[rest].sum() >= ENCLOSED_MIN_SHARE * n_solid:
             u_lo, u_hi = fg.bounds(rest)
             enclosed += bool(np.all(u_lo < lo) and np.all(u_hi > hi))
+    # pieces side by side with the product that hold as much as half of it: it broke up
+    beside = 0
+    near = others[np.argsort(-fg.size[others])][:BESIDE_CHECKED]
+    if len(near) and fg.size[near].sum() >= BESIDE_SHARE * n_solid:
+        b_lo, b_hi = fg.boxes(near)
+        overlap = np.all(b_lo < hi, axis=1) & np.all(b_hi > lo, axis=1)
+        if fg.size[near[overlap]].sum() >= BESIDE_SHARE * n_solid:
+            beside = int(fg.size[near[overlap]].sum())
     genus = 1 - euler
     # only a product closed otherwise is looked at for a channel (it takes a while)
     pit = (_pit_depth(lambda k: ~fg.select(k, product), slabs, shape, spacing_zyx, lo, hi)
            if genus == 0 and not enclosed else float("nan"))
     return _Segmentation(gap_mm, fg, product, slabs, lo, hi, n_object, n_solid - n_object,
-                         n_support, refused, genus, enclosed, pit, np.asarray(spacing_zyx, dtype=float),
+                         n_support, refused, genus, enclosed, beside, pit, np.asarray(spacing_zyx, dtype=float),
                          level=float(iso))
 
 
@@ -1837,7 +1874,7 @@ def extract_surface(
         mesh = decimate(mesh, int(target_vertices))
         check_closed_surface(mesh, name=name, allow_degenerate=True)
     tried = tuple({"level": a.level, "gap_mm": a.gap_mm, "genus": a.genus, "mesh_genus": a.mesh_genus,
-                   "enclosed": a.enclosed,
+                   "enclosed": a.enclosed, "beside_voxels": a.beside,
                    "channel_mm": round(a.pit_mm, 2) if math.isfinite(a.pit_mm) else None,
                    "n_filled_voxels": a.n_filled} for a in attempts)
     ext = Extraction(mesh, levels, bounds, seg.n_object, seg.n_filled, seg.n_support, n_mc,
@@ -1852,13 +1889,17 @@ def _warnings(ext: Extraction, seg: "_Segmentation", attempts, vol: Volume) -> l
     """What a person should look at in an extraction, one sentence each."""
     notes = []
     first = attempts[0]
-    if len(attempts) > 1:
+    # pieces beside that no gap joined are said once, below
+    if len(attempts) > 1 and not (seg.beside and seg.closed() and first.closed(alone=False)):
         why = []
         if first.genus:
             why.append(f"genus {first.genus} (tunnels or openings into the inside)")
         if first.enclosed:
             why.append("an open shell (a peel or wall with an opening) around another piece")
-        if not first.genus and not first.enclosed:
+        if first.beside:
+            why.append(f"other pieces beside it holding {first.beside / first.n_solid:.1f} times its voxels "
+                       "(it broke up at the level)")
+        if not first.genus and not first.enclosed and not first.beside:
             why.append(f"a narrow channel {first.pit_mm:.0f} mm deep into it" if not first.closed()
                        else f"a handle where voxels touch along an edge (genus {first.mesh_genus} once meshed)")
         ml = float(np.prod(vol.spacing)) / 1000.0
@@ -1872,6 +1913,10 @@ def _warnings(ext: Extraction, seg: "_Segmentation", attempts, vol: Volume) -> l
             f"slice) and broke up at the level {ext.levels.level:.4g}: what is inside was decided at "
             f"{ext.levels.segment:.4g}, the surface kept at the level where the voxels reach it"
         )
+    if seg.beside:  # only a gap of BESIDE_GAP_MM or more ends with pieces beside
+        notes.append(f"other pieces lie beside the product ({seg.beside:,} voxels, {seg.beside / seg.n_solid:.1f} "
+                     f"times its own) and a gap of {seg.gap_mm:g} mm did not join them: separate objects? Only "
+                     "the largest was kept; check the picture and the level (--level)")
     if not seg.closed():
         left = ([f"genus {seg.genus}"] if seg.genus else []) + (
             ["an open shell around another piece"] if seg.enclosed else []) + (
