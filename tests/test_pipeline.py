@@ -212,21 +212,24 @@ def test_orientation_consensus_needs_a_clear_gain_to_overrule_the_first_registra
         (first / f"s{i}.json").write_text(json.dumps({"orientation_scores": scores}))
     assert CONSENSUS_GAIN > 0.02
 
-    def runner_up(closer):
+    def runner_up(closer, attempts=1):
         def again(paths, folder, cfg, starts=None):
             folder.mkdir(parents=True, exist_ok=True)
             for p in paths:  # the odd one moved towards the others' mean
                 write_mesh(folder / f"{p.stem}.ply", Mesh(odd + closer * (others - odd), s.faces))
-            return [SimpleNamespace(ok=True) for _ in paths]
+            return [SimpleNamespace(ok=True, attempts=attempts) for _ in paths]
         return again
 
     records = _orientation_consensus(dict(files), layout, runner_up(0.02), CONFIG)
     (rec,) = records
     assert rec["name"] == "s4" and rec["why"] == "close call"
     assert rec["runner_up_distance_mm"] < rec["distance_mm"] and rec["kept"] == "first"
+    assert "runner_up_attempts" not in rec
     kept = dict(files)
-    (rec,) = _orientation_consensus(kept, layout, runner_up(0.5), CONFIG)
+    # run again after its worker was lost: the record says so (the build's `retried`)
+    (rec,) = _orientation_consensus(kept, layout, runner_up(0.5, attempts=2), CONFIG)
     assert rec["runner_up_distance_mm"] < 0.6 * rec["distance_mm"] and rec["kept"] == "runner-up"
+    assert rec["runner_up_attempts"] == 2
     assert kept[tmp_path / "s4.ply"] == layout.first_pass_runner_up / "s4.ply"
 
 

@@ -555,7 +555,8 @@ def _print_build(result) -> None:
     _print_results(result.second_pass)
     for path, reason in result.skipped:
         print(f"skipped {path}: {reason}")
-    retried = [f"{r.name} ({r.attempts} attempts)" for r in (*result.first_pass, *result.second_pass) if r.attempts > 1]
+    retried = [f"{name} ({f'pass {k}' if isinstance(k, int) else k}, {attempts} attempts)"
+               for name, k, attempts in result.retried]
     if retried:
         print(f"run again after their worker was lost: {', '.join(retried)}")
     if result.uncertain_orientation:

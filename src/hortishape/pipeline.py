@@ -643,6 +643,9 @@ class BuildResult:
     uncertain_orientation : tuple of (str, float)
         ``(name, confidence)`` of the instances whose first-pass orientation
         confidence was below ``UNCERTAIN_CONFIDENCE``: check them.
+    retried : tuple of (str, int or str, int)
+        ``(name, pass, attempts)`` of the registrations run again after their
+        worker was lost: pass 1, 2 or ``"orientation check"``.
     """
 
     out_dir: Path
@@ -656,6 +659,7 @@ class BuildResult:
     n_points: int
     seconds: float
     uncertain_orientation: tuple = ()
+    retried: tuple = ()
 
 
 def _stage(progress_factory, total: int, desc: str) -> Progress | None:
@@ -841,6 +845,9 @@ def build_model(
     model, gpa = _align_and_fit(layout, names, np.stack([read_mesh(layout.registered_mesh(n)).vertices for n in names]),
                                 template2.mesh.faces, scaling=scaling, n_modes=n_modes)
     model_path = layout.model
+    retried = [(r.name, k + 1, r.attempts) for k, rs in enumerate((first, second)) for r in rs if r.attempts > 1]
+    retried += [(rec["name"], "orientation check", rec[key]) for rec in rechecked for key in rec
+                if key.endswith("_attempts")]
 
     seconds = time.perf_counter() - start
     summary = {
@@ -850,8 +857,7 @@ def build_model(
         "n_points": template.mesh.n_vertices,
         "instances": names,
         "skipped": [{"path": p, "reason": e} for p, e in skipped],
-        "retried": [{"name": r.name, "pass": k + 1, "attempts": r.attempts}
-                    for k, rs in enumerate((first, second)) for r in rs if r.attempts > 1],
+        "retried": [{"name": n, "pass": k, "attempts": a} for n, k, a in retried],
         "first_pass": [asdict(r) for r in first],
         "orientation_check": rechecked,
         "uncertain_orientation": [{"name": n, "confidence": c} for n, c in uncertain],
@@ -860,7 +866,8 @@ def build_model(
     }
     atomic_text(layout.summary, json.dumps(_jsonable(summary), indent=1), HortishapeError)
     return BuildResult(out, model_path, str(ref_path), tuple(names), tuple(skipped), tuple(first),
-                       tuple(second), model.explained_variance_, model.n_points_, seconds, uncertain)
+                       tuple(second), model.explained_variance_, model.n_points_, seconds, uncertain,
+                       tuple(retried))
 
 
 #: An instance whose first-pass orientation confidence (the search's margin
@@ -973,6 +980,8 @@ def _orientation_consensus(files: dict, layout: ModelDir, register_paths, cfg: R
             res = results[k]
             key = label.replace("-", "_") + "_distance_mm"
             rec[key] = None
+            if res is not None and res.attempts > 1:
+                rec[label.replace("-", "_") + "_attempts"] = res.attempts
             if res is None or not res.ok:
                 continue
             alt = folder / f"{paths[i].stem}.ply"
@@ -1177,6 +1186,7 @@ def update_model(
     model, gpa = _align_and_fit(layout, names, shapes, old_model.faces_, scaling=scaling,
                                 n_modes=old_model.n_components)
     shift = float(np.sqrt(((model.mean_ - old_model.mean_) ** 2).sum(axis=1).mean()))
+    retried = [(r.name, 2, r.attempts) for r in added if r.attempts > 1]
     seconds = time.perf_counter() - start
     summary = {
         "units": _units_summary(checks, scale),
@@ -1185,7 +1195,7 @@ def update_model(
         "n_points": model.n_points_,
         "instances": names,
         "skipped": [{"path": p, "reason": e} for p, e in skipped],
-        "retried": [{"name": r.name, "pass": 2, "attempts": r.attempts} for r in added if r.attempts > 1],
+        "retried": [{"name": n, "pass": k, "attempts": a} for n, k, a in retried],
         "update": {
             "from": str(src.root),
             "earlier": old_names,
@@ -1202,7 +1212,7 @@ def update_model(
     }
     atomic_text(layout.summary, json.dumps(_jsonable(summary), indent=1), HortishapeError)
     return BuildResult(layout.root, layout.model, f"the mean of {src.model}", tuple(names), tuple(skipped), (),
-                       tuple(added), model.explained_variance_, model.n_points_, seconds, ())
+                       tuple(added), model.explained_variance_, model.n_points_, seconds, (), tuple(retried))
 
 
 def _units_summary(checks, scale: float) -> dict:
