@@ -518,7 +518,15 @@ def _outer_intensity(vol: Volume, background: float, foreground: float, noise: f
             edges.append(r[np.arange(len(r)), i] + shift * 0.5 * g1)
     if not maxima or sum(map(len, maxima)) < OUTER_MIN_RAYS:
         return float("nan"), float("nan"), []
-    return float(np.median(np.concatenate(maxima))), float(np.median(np.concatenate(edges))), rays
+    outer = float(np.median(np.concatenate(maxima)))
+    # the edge from the rays that met the outermost tissue: where a thin or dim peel fills too
+    # few voxels to be met, a ray's first voxels above the threshold are the flesh, and its
+    # edge is another (mixed in, the rays' edge profile fits neither)
+    met = [np.abs(m - outer) <= np.abs(m - foreground) for m in maxima]
+    if sum(int(k.sum()) for k in met) >= OUTER_MIN_RAYS:
+        rays = [(r[k], first[k], h) for (r, first, h), k in zip(rays, met) if k.any()]
+        edges = [e[k] for e, k in zip(edges, met)]
+    return outer, float(np.median(np.concatenate(edges))), rays
 
 
 def _detect_level(background: float, foreground: float, noise: float) -> float:
