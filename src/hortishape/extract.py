@@ -829,11 +829,11 @@ class _Components:
         """Bounding boxes ``(lo, hi)``, each ``(len(ids), 3)``, of the components ``ids``, in one pass."""
         lo = np.full((len(ids), 3), np.iinfo(np.int64).max)
         hi = np.zeros((len(ids), 3), dtype=np.int64)
+        chosen = [np.arange(len(self.size)) == c for c in ids]
         for k, (z0, _) in enumerate(self.slabs):
             labels = self.labels(k)
-            for i, c in enumerate(ids):
-                _grow_box(lo[i], hi[i], self.select(k, np.arange(len(self.size)) == c, labels=labels),
-                          z0 - self.z_lo)
+            for i, mask in enumerate(chosen):
+                _grow_box(lo[i], hi[i], self.select(k, mask, labels=labels), z0 - self.z_lo)
         return lo, hi
 
     def labels(self, k: int) -> np.ndarray:
@@ -1462,10 +1462,15 @@ def _segment(data, iso: float, spacing_zyx, slabs, *, gap_mm: float, remove_supp
     # of them is an open shell around the other (a peel whose opening the box
     # passed through, over the flesh)
     others = np.flatnonzero(~product & (fg.size >= ENCLOSED_MIN_SHARE * n_solid))
-    enclosed = 0
-    for c in others[np.argsort(-fg.size[others])][:ENCLOSED_CHECKED]:
-        c_lo, c_hi = fg.bounds(np.arange(len(fg.size)) == c)
-        enclosed += bool((np.all(c_lo >= lo) and np.all(c_hi <= hi)) or (np.all(c_lo <= lo) and np.all(c_hi >= hi)))
+    order = others[np.argsort(-fg.size[others])]
+    # pieces side by side with the product that may hold as much as half of it (it broke up, below)
+    # are looked at too: their boxes in the same pass
+    broke = fg.size[order[:BESIDE_CHECKED]].sum() >= BESIDE_SHARE * n_solid
+    looked = order[: max(ENCLOSED_CHECKED, BESIDE_CHECKED if broke else 0)]
+    b_lo, b_hi = fg.boxes(looked)
+    e_lo, e_hi = b_lo[:ENCLOSED_CHECKED], b_hi[:ENCLOSED_CHECKED]
+    enclosed = int(np.sum((np.all(e_lo >= lo, axis=1) & np.all(e_hi <= hi, axis=1))
+                          | (np.all(e_lo <= lo, axis=1) & np.all(e_hi >= hi, axis=1))))
     if not enclosed:
         # a shell broken into pieces (a thin peel at an MRI's slice thickness) around
         # one flesh segment: no piece is around the product, but together they are,
@@ -1474,14 +1479,11 @@ def _segment(data, iso: float, spacing_zyx, slabs, *, gap_mm: float, remove_supp
         if fg.size[rest].sum() >= ENCLOSED_MIN_SHARE * n_solid:
             u_lo, u_hi = fg.bounds(rest)
             enclosed += bool(np.all(u_lo < lo) and np.all(u_hi > hi))
-    # pieces side by side with the product that hold as much as half of it: it broke up
     beside = 0
-    near = others[np.argsort(-fg.size[others])][:BESIDE_CHECKED]
-    if len(near) and fg.size[near].sum() >= BESIDE_SHARE * n_solid:
-        b_lo, b_hi = fg.boxes(near)
-        overlap = np.all(b_lo < hi, axis=1) & np.all(b_hi > lo, axis=1)
-        if fg.size[near[overlap]].sum() >= BESIDE_SHARE * n_solid:
-            beside = int(fg.size[near[overlap]].sum())
+    if broke:
+        near = looked[np.all(b_lo < hi, axis=1) & np.all(b_hi > lo, axis=1)]
+        if fg.size[near].sum() >= BESIDE_SHARE * n_solid:
+            beside = int(fg.size[near].sum())
     genus = 1 - euler
     # only a product closed otherwise is looked at for a channel (it takes a while)
     pit = (_pit_depth(lambda k: ~fg.select(k, product), slabs, shape, spacing_zyx, lo, hi)

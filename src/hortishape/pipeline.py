@@ -978,10 +978,11 @@ def _orientation_consensus(files: dict, layout: ModelDir, register_paths, cfg: R
         best = dist[i]
         for label, (folder, results) in tries.items():
             res = results[k]
-            key = label.replace("-", "_") + "_distance_mm"
+            field = label.replace("-", "_")
+            key = field + "_distance_mm"
             rec[key] = None
             if res is not None and res.attempts > 1:
-                rec[label.replace("-", "_") + "_attempts"] = res.attempts
+                rec[field + "_attempts"] = res.attempts
             if res is None or not res.ok:
                 continue
             alt = folder / f"{paths[i].stem}.ply"
