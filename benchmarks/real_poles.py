@@ -29,6 +29,12 @@ Run::
     python benchmarks/real_poles.py --pairs self    # each of the eight onto a turned copy of itself
     python benchmarks/real_poles.py --scans 012_strawberry 013_apple 017_orange   # pairs of these
     python benchmarks/real_poles.py --marks         # what geometry shows at each mark (no registration)
+    python benchmarks/real_poles.py --up 20         # with an ``up`` hint per scan, 20 degrees off its axis
+
+``--up DEG`` gives both scans of each pair the ``up`` hint of ``hortishape
+register --up`` (``reference_up``, ``target_up``): each scan's marked
+blossom-to-stalk axis, tilted by DEG degrees in a random direction, as a user
+who knows how the scans stood would give it.
 
 ``--marks`` prints, for each marked scan, what a registration could find at its
 marks: the depth of each mark below the scan's convex hull, the deepest point
@@ -67,13 +73,22 @@ def _load(name: str, poles: dict):
     return scan.mesh, 1000.0 * np.asarray(marks["stalk"]), 1000.0 * np.asarray(marks["blossom"])
 
 
-def run(pairs, n_points: int, seed: int) -> list[dict]:
+def _tilted(axis: np.ndarray, degrees: float, rng) -> np.ndarray:
+    """``axis`` (unit) tilted by ``degrees`` towards a random perpendicular direction."""
+    side = np.cross(axis, rng.standard_normal(3))
+    side /= np.linalg.norm(side)
+    a = np.radians(degrees)
+    return np.cos(a) * axis + np.sin(a) * side
+
+
+def run(pairs, n_points: int, seed: int, up: float | None = None) -> list[dict]:
     from hortishape.mesh import Mesh
     from hortishape.registration import prepare_reference, register
 
     poles = json.loads((DATA / "poles.json").read_text())
     scans = {name: _load(name, poles) for name in dict.fromkeys(n for pair in pairs for n in pair)}
     rng = np.random.default_rng(seed)
+    rng_up = np.random.default_rng(seed + 1)  # apart, so that the pairs' turns are those of the run without hints
     rows = []
     templates = {}
     for a, b in pairs:
@@ -89,10 +104,16 @@ def run(pairs, n_points: int, seed: int) -> list[dict]:
         centre = mesh_b.vertices.mean(axis=0)
         turned = Mesh((mesh_b.vertices - centre) @ r.T + centre, mesh_b.faces)
         stalk_t, blossom_t = (stalk_b - centre) @ r.T + centre, (blossom_b - centre) @ r.T + centre
+        hints = {}
+        if up is not None:
+            _, stalk_a, blossom_a = scans[a]
+            unit = lambda x: x / np.linalg.norm(x)  # noqa: E731
+            hints = {"reference_up": _tilted(unit(stalk_a - blossom_a), up, rng_up),
+                     "target_up": _tilted(unit(stalk_t - blossom_t), up, rng_up)}
         start = time.perf_counter()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            reg = register(template, turned)
+            reg = register(template, turned, **hints)
         seconds = time.perf_counter() - start
         s, bl = reg.vertices[js], reg.vertices[jb]
         axis_reg, axis_true = s - bl, stalk_t - blossom_t
@@ -158,6 +179,8 @@ def main(argv=None) -> int:
     ap.add_argument("--points", type=int, default=30000, help="reference vertices (the paper's 30,000)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the random turns")
     ap.add_argument("--json", help="also write the rows to this file")
+    ap.add_argument("--up", type=float, default=None, metavar="DEG",
+                    help="give each scan an up hint: its marked axis tilted by DEG degrees (default: no hint)")
     ap.add_argument("--marks", action="store_true",
                     help="only what geometry shows at each mark: depth below the hull, the stalk's antipode")
     args = ap.parse_args(argv)
@@ -169,7 +192,7 @@ def main(argv=None) -> int:
     else:
         names = args.scans or ROUND
         pairs = [(a, b) for a in names for b in names if a != b]
-    rows = run(pairs, args.points, args.seed)
+    rows = run(pairs, args.points, args.seed, args.up)
     summarise(rows)
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
