@@ -703,14 +703,16 @@ def test_gaps_closed_next_to_the_border_leave_no_cap():
     assert ext.volume == pytest.approx(4 / 3 * np.pi * 25.0**3, rel=0.005)
 
 
-def _thin_peel_ball(seed=0, radius=20.0, peel=0.5, rind=3.0, core=8.0, pixel=0.5, slice_mm=2.0):
+def _thin_peel_ball(seed=0, radius=20.0, peel=0.5, rind=3.0, core=8.0, pixel=0.5, slice_mm=2.0, shift=(0, 0, 0)):
     """An MRI-like ball (mm) in slices four times as thick as its pixels, 48 mm across: a bright
     peel ``peel`` thick (thinner than a slice) over a dark rind, bright flesh around a dark core
-    that runs from pole to pole. Partial volume from 2 x 2 x 4 points per voxel, Rician noise."""
+    that runs from pole to pole. Partial volume from 2 x 2 x 4 points per voxel, Rician noise.
+    Its centre ``shift`` (mm) from the field's."""
     n_xy, n_z = int(round(48 / pixel)), int(round(48 / slice_mm))
     sub = (2, 2, 4)
-    axes = [(np.arange(n)[:, None] + (np.arange(k) + 0.5) / k).ravel() * h - 24.0
-            for n, k, h in ((n_xy, sub[0], pixel), (n_xy, sub[1], pixel), (n_z, sub[2], slice_mm))]
+    axes = [(np.arange(n)[:, None] + (np.arange(k) + 0.5) / k).ravel() * h - 24.0 - c
+            for n, k, h, c in ((n_xy, sub[0], pixel, shift[0]), (n_xy, sub[1], pixel, shift[1]),
+                               (n_z, sub[2], slice_mm, shift[2]))]
     x, y, z = np.meshgrid(*axes, indexing="ij")
     d = np.sqrt(x**2 + y**2 + z**2) - radius
     v = np.where(d <= 0, 90.0, 3.0)
@@ -740,6 +742,25 @@ def test_a_peel_thinner_than_a_slice_is_kept_whole_at_the_poles():
     centre = 24.0 - 0.5 * vol.spacing  # voxel i spans [i, i + 1) spacings, its centre at i
     radial = np.linalg.norm(ext.mesh.vertices - centre, axis=1)
     assert np.abs(radial - 20.0).mean() < 0.3  # mm; the slices are 2 mm
+
+
+@pytest.mark.parametrize("shift", [(0.07, -0.12, -0.92), (-0.1, -0.04, -0.94)])
+def test_gaps_that_close_a_pole_left_open_do_not_sink_it(shift):
+    # a peel 0.8 mm thick, its brightness near the flesh's (so the level is half-way between the
+    # histogram's peaks), in slices 2 mm thick whose boundary lies near a pole: across the slices it
+    # stays below the level there, and gaps of 8 mm made the product whole but bridged the pole
+    # only partly: -18.6 % (before; warned only of the gaps); what is inside is decided at the lower
+    # level
+    vol = _thin_peel_ball(peel=0.8, shift=shift)
+    with pytest.warns(ExtractionWarning, match="thinner than a slice"):
+        ext = extract_surface(vol)
+    assert ext.levels.segment < ext.levels.level
+    assert ext.genus == 0
+    check_closed_surface(ext.mesh)
+    assert ext.volume == pytest.approx(4 / 3 * np.pi * 20.0**3, rel=0.015)
+    centre = 24.0 + np.asarray(shift) - 0.5 * vol.spacing
+    radial = np.linalg.norm(ext.mesh.vertices - centre, axis=1)
+    assert np.abs(radial - 20.0).mean() < 0.3
 
 
 def test_strong_noise_leaves_one_surface():

@@ -207,10 +207,14 @@ FRUIT_EXTENT_MM = (10.0, 600.0)
 #: the ``SLICE_QUANTILE`` of the outermost tissue's peaks; where ``SLICE_SHARE`` of the way
 #: to it from the background is below the level, what is inside is decided there instead
 #: (no lower than the rays' detection level), when no gap width closes the product at the
-#: level: a thin peel stays whole at the poles.
+#: level, or only the widest does and the lower level's product holds ``LOWER_GAIN`` more: a
+#: thin peel stays whole at the poles.
 SLICE_ANISOTROPY = 1.25
 SLICE_QUANTILE = 0.1
 SLICE_SHARE = 0.5
+#: The lower level's product is kept over the level's, both whole, when it holds this share more:
+#: the level's gaps closed over a pole that a peel thinner than a slice left open.
+LOWER_GAIN = 0.01
 #: Integer voxels: the surface is meshed at least this far (intensity units) from an integer value.
 ISO_OFF_INTEGER = 0.05
 
@@ -1746,6 +1750,13 @@ def _mesh_product(vol: Volume, iso: float, seg_iso: float, inside_value: float, 
     return index_vertices, faces, bounds, seg, attempts
 
 
+def _marched_volume(product) -> float:
+    """The volume (voxel units) inside a :func:`_mesh_product` result's marched surface."""
+    from .surface import signed_volume
+
+    return abs(signed_volume(product[0], product[1]))
+
+
 def extract_surface(
     volume,
     *,
@@ -1840,7 +1851,8 @@ def extract_surface(
                              gaps_mm=GAPS_MM, name=name)
 
     # the level decides what is inside, unless the outermost tissue breaks up there (a peel
-    # thinner than a slice, at the poles) and no gap width closes it: then the lower level
+    # thinner than a slice, at the poles) and no gap width closes it, or the widest closed it
+    # over a sunk pole: then the lower level
     result, attempts = None, []  # the attempts of every pass, in order
     try:
         result = mesh_product(iso)
@@ -1848,7 +1860,10 @@ def extract_surface(
     except VolumeError:
         if seg_iso >= iso:
             raise
-    if seg_iso < iso and (result is None or result[3].mesh_genus != 0 or not result[3].closed()):
+    if seg_iso < iso and (result is None or result[3].gap_mm >= GAPS_MM[-1] or result[3].mesh_genus != 0
+                          or not result[3].closed()):
+        # also where only the widest gaps made the level's product whole: a pole the peel left
+        # open is about that wide, and they bridge it only partly: the surface sinks into the flesh
         try:
             again = mesh_product(seg_iso)
         except VolumeError:
@@ -1857,7 +1872,9 @@ def extract_surface(
             # the lower level took in the background's noise: the level's product stays
         else:
             attempts += again[4]
-            if result is None or (again[3].mesh_genus == 0 and again[3].closed()):
+            whole = again[3].mesh_genus == 0 and again[3].closed()
+            if result is None or (whole and (result[3].mesh_genus != 0 or not result[3].closed()
+                                             or _marched_volume(again) > (1 + LOWER_GAIN) * _marched_volume(result))):
                 result = again
             del again
     if result[3].level >= iso:  # the lower level was not used: the levels say so
