@@ -548,6 +548,28 @@ def test_a_given_level_on_the_flesh_still_gives_one_closed_surface_of_genus_0():
     check_closed_surface(ext.mesh)
 
 
+def test_the_level_is_the_peels_where_part_of_the_fruit_has_none():
+    # a 2 mm peel (30) over a dark rind covers the ball above z = -4 mm; below, the flesh (100)
+    # reaches the surface bare: 40 % of the rays meet the flesh first. The level is the peel's
+    # edge, half-way from the background (2) to it; with those rays pooled into its edge profile
+    # the level was 20.3 (before 46ba3ec), and higher the more of the surface is bare
+    from scipy.ndimage import gaussian_filter
+
+    h, n = 0.5, 100
+    rng = np.random.default_rng(0)
+    axis = (np.arange(n) + 0.5) * h - 25.0
+    x, y, z = np.meshgrid(axis - 0.1, axis + 0.2, axis - 0.15, indexing="ij")
+    r = np.sqrt(x**2 + y**2 + z**2)
+    v = np.where(r <= 20.0, np.where(z > -4.0, 30.0, 100.0), 2.0)
+    v[(r <= 18.0) & (z > -4.0)] = 8.0
+    v[r <= 16.5] = 100.0
+    v = gaussian_filter(v, 0.6)
+    v = np.hypot(v + rng.normal(0, 2.0, v.shape), rng.normal(0, 2.0, v.shape))
+    levels = extract.intensity_levels(Volume(np.clip(np.rint(v), 0, 255).astype(np.uint8), spacing=(h, h, h)))
+    assert levels.method == "outer"
+    assert levels.level == pytest.approx(16.0, abs=1.5)
+
+
 @pytest.mark.parametrize("sigma", [1.5, 2.0])
 def test_a_wide_blur_is_not_taken_for_an_outer_tissue(sigma):
     # 1 mm voxels blurred over 1.5-2 voxels: the brightest voxel within the 2 mm window
