@@ -1398,6 +1398,10 @@ class _Segmentation:
         return (self.genus == 0 and not self.enclosed and self.pit_mm <= PIT_DEPTH * extent
                 and not (alone and self.beside and self.gap_mm < BESIDE_GAP_MM))
 
+    def whole(self) -> bool:
+        """Closed (:meth:`closed`) and, once marched, a surface of genus 0."""
+        return self.mesh_genus == 0 and self.closed()
+
 
 def _segment(data, iso: float, spacing_zyx, slabs, *, gap_mm: float, remove_support: bool,
              support_radius: float, coarse: int, name: str) -> _Segmentation:
@@ -1860,8 +1864,7 @@ def extract_surface(
     except VolumeError:
         if seg_iso >= iso:
             raise
-    if seg_iso < iso and (result is None or result[3].gap_mm >= GAPS_MM[-1] or result[3].mesh_genus != 0
-                          or not result[3].closed()):
+    if seg_iso < iso and (result is None or result[3].gap_mm >= GAPS_MM[-1] or not result[3].whole()):
         # also where only the widest gaps made the level's product whole: a pole the peel left
         # open is about that wide, and they bridge it only partly: the surface sinks into the flesh
         try:
@@ -1872,9 +1875,8 @@ def extract_surface(
             # the lower level took in the background's noise: the level's product stays
         else:
             attempts += again[4]
-            whole = again[3].mesh_genus == 0 and again[3].closed()
-            if result is None or (whole and (result[3].mesh_genus != 0 or not result[3].closed()
-                                             or _marched_volume(again) > (1 + LOWER_GAIN) * _marched_volume(result))):
+            if result is None or (again[3].whole() and (
+                    not result[3].whole() or _marched_volume(again) > (1 + LOWER_GAIN) * _marched_volume(result))):
                 result = again
             del again
     if result[3].level >= iso:  # the lower level was not used: the levels say so
