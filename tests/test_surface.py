@@ -12,6 +12,7 @@ from hortishape.surface import (
     check_closed_surface,
     checked_surface,
     closest_points,
+    component_labels,
     face_areas,
     fill_holes,
     remesh,
@@ -75,6 +76,30 @@ def test_check_closed_surface_errors():
         check_closed_surface(Mesh(s.vertices, f2))  # non-manifold
     flipped = Mesh(s.vertices, s.faces[:, ::-1])
     assert check_closed_surface(flipped) == -1.0
+
+
+def test_component_labels_agree_with_a_graph_search():
+    # pieces of random sizes, vertices numbered at random, a few used by no face, and a fan
+    # whose hub has the largest number (the case where joining one root at a time would crawl)
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    rng = np.random.default_rng(5)
+    for _ in range(60):
+        pieces, n = [], 0
+        for _ in range(rng.integers(1, 6)):
+            s = trimesh.creation.icosphere(int(rng.integers(0, 3)))
+            pieces.append(np.asarray(s.faces) + n)
+            n += len(s.vertices)
+        rim = int(rng.integers(3, 200))
+        pieces.append(np.stack([np.arange(rim) + n, (np.arange(rim) + 1) % rim + n, np.full(rim, n + rim)], axis=1))
+        n += rim + 1 + int(rng.integers(0, 4))
+        faces = rng.permutation(n)[np.concatenate(pieces)]
+        graph = sp.csr_matrix((np.ones(3 * len(faces)), (faces.ravel(), faces[:, [1, 2, 0]].ravel())), shape=(n, n))
+        expected_n, expected = connected_components(graph, directed=False)
+        got_n, got = component_labels(faces, n)
+        assert got_n == expected_n
+        np.testing.assert_array_equal(got, expected)
 
 
 def _without(mesh: trimesh.Trimesh, drop: np.ndarray) -> Mesh:
