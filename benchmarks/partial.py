@@ -26,6 +26,14 @@ Run::
     python benchmarks/partial.py                    # 20 training apples, 6 test apples
     python benchmarks/partial.py --train 12 --test 6 --seed 5 --table
     python benchmarks/partial.py --train 12 --seed 21 --views 1 --build /tmp/build21   # as a user builds it
+    python benchmarks/partial.py --generator othergen --seed 1000 --train 12 --views 1   # apples of the second generator
+
+With ``--generator othergen`` the apples (model and test) come from
+``benchmarks/othergen.py``, the second generator, which shares no code with
+``hortishape.synth``: training apples seeds S .. S+N-1, test apples seeds
+S+500 onwards, the model in that generator's true correspondence (every
+training apple's surface at the first one's vertex directions) or built
+with ``--build``.
 """
 
 from __future__ import annotations
@@ -67,6 +75,57 @@ def build_pipeline_model(n_train: int, seed: int, n_points: int, folder: Path):
         synth.write_population("apple", n_train, folder / "scans", random_state=seed)
         build_model(folder / "scans", folder / "model", n_points=n_points)
     return ShapeModel.load(path)
+
+
+def othergen_truth_model(n_train: int, seed: int):
+    """A model of ``n_train`` apples of the second generator in its true correspondence.
+
+    The reference is the first apple's own surface (about 30,000 vertices at its
+    1 mm edges); every apple contributes its surface at the same directions of
+    its frame (``othergen.surface``), upright and without scanner noise.
+    """
+    import othergen
+
+    from hortishape.model import ShapeModel
+    from hortishape.procrustes import generalized_procrustes
+
+    first = othergen.make_fruit("apple", seed, pose="upright")
+    shapes = np.stack([othergen.surface(othergen.make_fruit("apple", seed + i, pose="upright"), first.directions)
+                       for i in range(n_train)])
+    gpa = generalized_procrustes(shapes)
+    return ShapeModel().fit(gpa.aligned, first.faces)
+
+
+def othergen_build_model(n_train: int, seed: int, n_points: int, folder: Path):
+    """``hortishape build`` of ``n_train`` second-generator apple scans (random poses), kept in ``folder``."""
+    import othergen
+
+    from hortishape.io import write_mesh
+    from hortishape.mesh import Mesh
+    from hortishape.model import ShapeModel
+    from hortishape.pipeline import build_model
+
+    path = folder / "model" / "model.h5"
+    if not path.exists():
+        (folder / "scans").mkdir(parents=True, exist_ok=True)
+        for i in range(n_train):
+            fruit = othergen.make_fruit("apple", seed + i)
+            write_mesh(folder / "scans" / f"apple_{seed + i}.ply", Mesh(fruit.vertices, fruit.faces))
+        build_model(folder / "scans", folder / "model", n_points=n_points)
+    return ShapeModel.load(path)
+
+
+def othergen_tests(n_test: int, seed: int):
+    """Test apples of the second generator (seeds ``seed + 500`` on), random poses: (name, Mesh) pairs."""
+    import othergen
+
+    from hortishape.mesh import Mesh
+
+    out = []
+    for j in range(n_test):
+        fruit = othergen.make_fruit("apple", seed + 500 + j)
+        out.append((f"othergen_apple_{seed + 500 + j}", Mesh(fruit.vertices, fruit.faces)))
+    return out
 
 
 def surface_error(vertices, faces, truth) -> float:
@@ -148,6 +207,8 @@ def main() -> None:
     ap.add_argument("--build", type=Path, default=None, metavar="DIR",
                     help="build the model as a user does ('hortishape build' of synthetic scans, kept in DIR and "
                          "reused) instead of in the generator's true correspondence")
+    ap.add_argument("--generator", choices=("synth", "othergen"), default="synth",
+                    help="the apples' generator: hortishape.synth, or the second one (benchmarks/othergen.py)")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
 
@@ -156,24 +217,28 @@ def main() -> None:
     from hortishape.surface import signed_volume, vertex_normals
 
     t0 = time.perf_counter()
+    othergen = args.generator == "othergen"
     if args.build:
-        model = build_pipeline_model(args.train, args.seed, args.points, args.build)
+        model = (othergen_build_model if othergen else build_pipeline_model)(args.train, args.seed, args.points, args.build)
         how = f"registered by 'hortishape build' (in {args.build})"
     else:
-        model = build_truth_model(args.train, args.seed, args.points)
+        model = othergen_truth_model(args.train, args.seed) if othergen else build_truth_model(args.train, args.seed, args.points)
         how = "in true correspondence"
-    print(f"model: {args.train} synthetic apples (seed {args.seed}) {how}, "
+    print(f"model: {args.train} {args.generator} apples (seed {args.seed}) {how}, "
           f"{model.n_points_:,} vertices, {model.n_components_} modes ({time.perf_counter() - t0:.0f} s)")
     t0 = time.perf_counter()
     fitter = PartialFitter(model)
     print(f"prepared the model for partial fits (leave-one-out calibration, axis) in {time.perf_counter() - t0:.2f} s")
     pose_only = PartialFitter(model, modes=0)
-    tests = synth.make_population("apple", args.test, random_state=args.seed + 1000, pose="random")
+    if othergen:
+        tests = othergen_tests(args.test, args.seed)
+    else:
+        tests = [(inst.name, inst.mesh)
+                 for inst in synth.make_population("apple", args.test, random_state=args.seed + 1000, pose="random")]
     rng = np.random.default_rng(args.seed)
     rows = []
     for n_views in args.views:
-        for inst in tests:
-            truth = inst.mesh
+        for name, truth in tests:
             views = [synth.depth_view(truth, rng.normal(size=3), noise=args.noise, random_state=rng)
                      for _ in range(n_views)]
             points = np.concatenate([v.points for v in views])
@@ -213,7 +278,7 @@ def main() -> None:
             ell = ellipsoid(seen)
             mean_v, mean_f, mean_vol = scaled_mean(pose_only, seen)
             row = {
-                "views": n_views, "name": inst.name, "points": len(points), "observed": fit.observed_fraction,
+                "views": n_views, "name": name, "points": len(points), "observed": fit.observed_fraction,
                 "completion_mm": completion, "volume_true_ml": true_volume, "volume_ml": fit.volume_ml,
                 "volume_sd_ml": fit.volume_sd_ml, "volume_error_pct": 100 * (fit.volume_ml / true_volume - 1),
                 "z": (fit.volume_ml - true_volume) / fit.volume_sd_ml, "vertex_within_1sd": within1,
@@ -226,7 +291,7 @@ def main() -> None:
                 "mean_volume_error_pct": 100 * (mean_vol / 1000.0 / true_volume - 1),
             }
             rows.append(row)
-            print(f"{n_views} view(s) {inst.name}: seen {fit.observed_fraction:.0%}, completion {completion:.2f} mm, "
+            print(f"{n_views} view(s) {name}: seen {fit.observed_fraction:.0%}, completion {completion:.2f} mm, "
                   f"volume {fit.volume_ml:.1f} +/- {fit.volume_sd_ml:.1f} mL (true {true_volume:.1f}, "
                   f"{row['volume_error_pct']:+.1f} %, z {row['z']:+.1f}), vertices within 1/2 SD "
                   f"{within1:.0%}/{within2:.0%}, {seconds:.2f} s", flush=True)
