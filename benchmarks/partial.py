@@ -28,6 +28,13 @@ Run::
     python benchmarks/partial.py --train 12 --seed 21 --views 1 --build /tmp/build21   # as a user builds it
     python benchmarks/partial.py --generator othergen --seed 1000 --train 12 --views 1   # apples of the second generator
 
+With ``--real NAME`` the test fruit is a real scan instead
+(``tests/data/ycb/NAME_google16k.ply``, a YCB replica fruit, metres read as
+mm), seen ``--test`` times from random directions; the model is of apples
+(``--generator``, ``--build``) as above:
+
+    python benchmarks/partial.py --real 013_apple --test 10 --train 30 --views 1 --seed 7
+
 With ``--generator othergen`` the apples (model and test) come from
 ``benchmarks/othergen.py``, the second generator, which shares no code with
 ``hortishape.synth``: training apples seeds S .. S+N-1, test apples seeds
@@ -128,6 +135,15 @@ def othergen_tests(n_test: int, seed: int):
     return out
 
 
+def real_tests(name: str, n_test: int):
+    """A real scan (``tests/data/ycb``), ``n_test`` times: (name, Mesh) pairs, mm."""
+    from hortishape.units import read_scan
+
+    path = Path(__file__).resolve().parent.parent / "tests" / "data" / "ycb" / f"{name}_google16k.ply"
+    mesh = read_scan(path, scale=1000.0).mesh
+    return [(f"{name}#{j}", mesh) for j in range(n_test)]
+
+
 def surface_error(vertices, faces, truth) -> float:
     """Mean distance both ways between a surface and the true one, averaged, mm."""
     from hortishape.mesh import Mesh
@@ -209,6 +225,11 @@ def main() -> None:
                          "reused) instead of in the generator's true correspondence")
     ap.add_argument("--generator", choices=("synth", "othergen"), default="synth",
                     help="the apples' generator: hortishape.synth, or the second one (benchmarks/othergen.py)")
+    ap.add_argument("--test-generator", choices=("synth", "othergen"), default=None,
+                    help="the test apples' generator, if not the model's (a model of one generator's apples "
+                         "completing the other's)")
+    ap.add_argument("--real", default=None, metavar="NAME",
+                    help="test on a real scan, tests/data/ycb/NAME_google16k.ply (e.g. 013_apple), seen --test times")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
 
@@ -230,7 +251,9 @@ def main() -> None:
     fitter = PartialFitter(model)
     print(f"prepared the model for partial fits (leave-one-out calibration, axis) in {time.perf_counter() - t0:.2f} s")
     pose_only = PartialFitter(model, modes=0)
-    if othergen:
+    if args.real:
+        tests = real_tests(args.real, args.test)
+    elif (args.test_generator or args.generator) == "othergen":
         tests = othergen_tests(args.test, args.seed)
     else:
         tests = [(inst.name, inst.mesh)
