@@ -31,7 +31,7 @@ Run::
 With ``--real NAME`` the test fruit is a real scan instead
 (``tests/data/ycb/NAME_google16k.ply``, a YCB replica fruit, metres read as
 mm), seen ``--test`` times from random directions; the model is of apples
-(``--generator``, ``--build``) as above:
+(``--generator``, ``--build``), as described next:
 
     python benchmarks/partial.py --real 013_apple --test 10 --train 30 --views 1 --seed 7
 
@@ -87,9 +87,10 @@ def build_pipeline_model(n_train: int, seed: int, n_points: int, folder: Path):
 def othergen_truth_model(n_train: int, seed: int):
     """A model of ``n_train`` apples of the second generator in its true correspondence.
 
-    The reference is the first apple's own surface (about 30,000 vertices at its
-    1 mm edges); every apple contributes its surface at the same directions of
-    its frame (``othergen.surface``), upright and without scanner noise.
+    The reference is the first apple's own surface (about 42,000 vertices at its
+    1 mm edges, so ``--points`` does not apply); every apple contributes its
+    surface at the same directions of its frame (``othergen.surface``), upright
+    and without scanner noise.
     """
     import othergen
 
