@@ -497,7 +497,8 @@ def real_shape_volume(name: str, modality: str, seed: int):
     MRI: 0.39 x 0.39 x 1 mm voxels, 8-bit, Rician noise 2-4; CT: 0.6 mm voxels, int16, Gaussian
     noise 15-40 and blur. Partial volume: each voxel the mean of 2 x 2 x 4 (MRI) or 2 x 2 x 2 (CT)
     points, the depth at each from the voxel centre's distance to the surface, to first order.
-    Returns ``(Volume, truth_vertices, truth_faces)``, mm, world coordinates.
+    Returns ``(Volume, truth)``: the truth is a ``Mesh`` of the scan's surface in the volume's world
+    coordinates (mm).
     """
     from scipy import ndimage
     from scipy.spatial.transform import Rotation
