@@ -68,18 +68,30 @@ def build_truth_model(n_train: int, seed: int, n_points: int):
     return ShapeModel().fit(gpa.aligned, ref.mesh.faces)
 
 
-def build_pipeline_model(n_train: int, seed: int, n_points: int, folder: Path):
-    """A model as a user builds one: ``hortishape build`` of ``n_train`` synthetic apple scans.
+def build_pipeline_model(n_train: int, seed: int, n_points: int, folder: Path, generator: str = "synth"):
+    """A model as a user builds one: ``hortishape build`` of ``n_train`` apple scans.
 
-    The scans and the model are kept in ``folder`` and reused when the model is there already.
+    The scans come from ``hortishape.synth`` or, with ``generator="othergen"``, from
+    the second generator (random poses). They and the model are kept in ``folder``
+    and reused when the model is there already.
     """
     from hortishape import synth
+    from hortishape.io import write_mesh
+    from hortishape.mesh import Mesh
     from hortishape.model import ShapeModel
     from hortishape.pipeline import build_model
 
     path = folder / "model" / "model.h5"
     if not path.exists():
-        synth.write_population("apple", n_train, folder / "scans", random_state=seed)
+        if generator == "othergen":
+            import othergen
+
+            (folder / "scans").mkdir(parents=True, exist_ok=True)
+            for i in range(n_train):
+                fruit = othergen.make_fruit("apple", seed + i)
+                write_mesh(folder / "scans" / f"apple_{seed + i}.ply", Mesh(fruit.vertices, fruit.faces))
+        else:
+            synth.write_population("apple", n_train, folder / "scans", random_state=seed)
         build_model(folder / "scans", folder / "model", n_points=n_points)
     return ShapeModel.load(path)
 
@@ -102,25 +114,6 @@ def othergen_truth_model(n_train: int, seed: int):
                        for i in range(n_train)])
     gpa = generalized_procrustes(shapes)
     return ShapeModel().fit(gpa.aligned, first.faces)
-
-
-def othergen_build_model(n_train: int, seed: int, n_points: int, folder: Path):
-    """``hortishape build`` of ``n_train`` second-generator apple scans (random poses), kept in ``folder``."""
-    import othergen
-
-    from hortishape.io import write_mesh
-    from hortishape.mesh import Mesh
-    from hortishape.model import ShapeModel
-    from hortishape.pipeline import build_model
-
-    path = folder / "model" / "model.h5"
-    if not path.exists():
-        (folder / "scans").mkdir(parents=True, exist_ok=True)
-        for i in range(n_train):
-            fruit = othergen.make_fruit("apple", seed + i)
-            write_mesh(folder / "scans" / f"apple_{seed + i}.ply", Mesh(fruit.vertices, fruit.faces))
-        build_model(folder / "scans", folder / "model", n_points=n_points)
-    return ShapeModel.load(path)
 
 
 def othergen_tests(n_test: int, seed: int):
@@ -241,7 +234,7 @@ def main() -> None:
     t0 = time.perf_counter()
     othergen = args.generator == "othergen"
     if args.build:
-        model = (othergen_build_model if othergen else build_pipeline_model)(args.train, args.seed, args.points, args.build)
+        model = build_pipeline_model(args.train, args.seed, args.points, args.build, args.generator)
         how = f"registered by 'hortishape build' (in {args.build})"
     else:
         model = othergen_truth_model(args.train, args.seed) if othergen else build_truth_model(args.train, args.seed, args.points)
