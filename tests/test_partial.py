@@ -158,3 +158,24 @@ def test_the_jackknife_in_the_gram_matrix_is_that_of_the_models_built_without_ea
                                rtol=1e-6)
     np.testing.assert_allclose(sd, np.sqrt(factor * np.sum(np.einsum("and,nd->an", spread, mean_normals) ** 2, axis=0)),
                                rtol=1e-6, atol=1e-9)
+
+
+def test_the_axis_of_revolution_of_one_side_of_a_fruit_is_found_from_its_points_alone(sphere):
+    from hortishape.partial import _revolution_axis
+
+    # an egg with a dimple at one end: a body of revolution about z, seen from one side in a known pose
+    v = sphere.vertices * [40.0, 40.0, 47.0]
+    v[:, 2] -= 8.0 * np.exp(-(v[:, 0] ** 2 + v[:, 1] ** 2) / 150.0) * (v[:, 2] > 0)
+    pose = rotation_about([1.0, 2.0, 0.5], 2.0)
+    egg = Mesh(v @ pose.T + [30.0, -20.0, 200.0], sphere.faces)
+    view = depth_view(egg, [0.3, -1.0, 0.2], noise=0.2, random_state=0)
+    direction, point = _revolution_axis(view.points, np.random.default_rng(0))
+    axis = pose @ [0.0, 0.0, 1.0]
+    assert np.degrees(np.arccos(abs(direction @ axis))) < 3.0
+    # the point lies on the axis, which passes through the egg's centre
+    off = point - np.array([30.0, -20.0, 200.0])
+    assert np.linalg.norm(off - (off @ axis) * axis) < 1.5
+    # a sphere's normals meet at its centre: every line through it is an axis, so none is told
+    ball = Mesh(sphere.vertices * 40.0, sphere.faces)
+    assert _revolution_axis(depth_view(ball, [0.0, 0.0, -1.0], noise=0.2, random_state=0).points,
+                            np.random.default_rng(0)) is None

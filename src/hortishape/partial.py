@@ -21,16 +21,23 @@ observations is closed-form linear algebra in the ``k`` coefficients:
   summed cross products of the opposite edges), so its variance is
   ``g^T S g``.
 
-The pose is searched first: the 60 rotations of the icosahedral group, each
-refined by a trimmed rigid ICP of the points against the model's mean; the
-best distinct ones are screened by a short fit with the modes (the mean
-alone ranks them poorly), the best of those is also tried turned about the
-fruit's axis in ``TWISTS`` steps (a view of one side of a round fruit often
-leaves the turn open, and a wrong turn explains the points with the wrong
-coefficients), and the best few are fitted in full. Points far from the
-fitted surface (a table, a neighbouring fruit) are trimmed at every step:
-farther than ``TRIM_MAD`` robust standard deviations of the distances, and
-never closer than ``TRIM_FLOOR_MM``.
+The pose is searched first. Most fruit are nearly bodies of revolution, and
+every normal line of a body of revolution meets its axis: the line the
+points' own normal lines meet best is the fruit's axis, found from one side
+as well as from all round, whatever the fruit's proportions
+(:func:`_revolution_axis`). When the points show such a line, the model's
+axis is put on it, either end up, turned about it in ``AXIS_TURNS`` steps,
+and each start is ranked by a few Gauss-Newton iterations with the modes.
+When they do not (a sphere, a peach), the 60 rotations of the icosahedral
+group are each refined by a trimmed rigid ICP of the points against the
+model's mean; the best distinct ones are screened by a short fit with the
+modes (the mean alone ranks them poorly), the best of those is also tried
+turned about the fruit's axis in ``TWISTS`` steps (a view of one side of a
+round fruit often leaves the turn open, and a wrong turn explains the
+points with the wrong coefficients). Either way the best few are fitted in
+full. Points far from the fitted surface (a table, a neighbouring fruit)
+are trimmed at every step: farther than ``TRIM_MAD`` robust standard
+deviations of the distances, and never closer than ``TRIM_FLOOR_MM``.
 
 The result is a mixture: each pose fitted in full contributes its Laplace
 approximation (coefficients and pose together; the pose's uncertainty is
@@ -72,7 +79,7 @@ import numpy.typing as npt
 from scipy.spatial import cKDTree
 
 from ._rng import RandomState, as_generator
-from .align import fruit_axis, rotation_about, rotation_angle
+from .align import _rotation_between, fruit_axis, rotation_about, rotation_angle
 from .errors import HortishapeError
 from .mesh import Mesh
 from .surface import closest_points, signed_volume, vertex_areas, vertex_normals
@@ -98,6 +105,16 @@ FINALISTS = 2
 #: SAME_POSE degrees of each other are one pose.
 TWISTS = 12
 SAME_POSE = 10.0
+#: The points' own axis of revolution (the line their normal lines meet best) gives the starts
+#: instead of the search above when it is clearly the best line (its misfit below AXIS_GAP times
+#: the next line's): the model's axis on it, either end up, turned about it in AXIS_TURNS steps.
+#: Normals from the AXIS_NEIGHBOURS nearest points; lines fitted to at most AXIS_POINTS points.
+AXIS_TURNS = 6
+#: Gauss-Newton iterations that rank those starts (with the shape's own normals).
+AXIS_ITERATIONS = 8
+AXIS_GAP = 0.25
+AXIS_NEIGHBOURS = 20
+AXIS_POINTS = 4000
 #: Poses whose share of the posterior mixture is below this are left out of it.
 MIN_SHARE = 0.01
 #: The calibration's misfit modes: the leading ones, holding this share of the misfits' variance.
@@ -295,6 +312,51 @@ def _drop_planes(points: np.ndarray, normals, model_extent: float, rng) -> tuple
         normals = None if normals is None else normals[~on]
         dropped += int(on.sum())
     return points, normals, dropped
+
+
+def _revolution_axis(points: np.ndarray, rng) -> tuple[np.ndarray, np.ndarray] | None:
+    """The line the points' normal lines meet best: ``(direction, a point on it)``, or None when unclear.
+
+    Every normal line of a surface of revolution meets its axis (Pottmann and
+    Randrup's linear line complex): with the normal line through ``p`` along
+    ``n`` and the axis through ``c`` along ``a``, ``det(a, p - c, n) = 0``,
+    which is linear in the axis's Pluecker coordinates ``(a, c x a)``. The
+    least-squares line is the smallest generalised eigenvector of a 6 x 6
+    matrix. A sphere's normals meet every line through its centre; the line
+    counts only when its misfit is below ``AXIS_GAP`` of the next's (on a
+    sphere seen from one side, the noise of the normals favours the line of
+    sight, but not by that much; docs/design-notes.md). The normals are the
+    points' own (their neighbourhoods' least spread), so given normals are
+    not needed; a fifth of the points that miss the line most (stray points,
+    a stalk) are dropped and the line fitted again.
+    """
+    from scipy.linalg import eigh
+
+    if len(points) > AXIS_POINTS:
+        points = points[rng.choice(len(points), AXIS_POINTS, replace=False)]
+    if len(points) < 2 * AXIS_NEIGHBOURS:
+        return None
+    _, near = cKDTree(points).query(points, AXIS_NEIGHBOURS)
+    hood = points[near] - points[near].mean(axis=1, keepdims=True)
+    normals = np.linalg.eigh(np.einsum("nki,nkj->nij", hood, hood))[1][:, :, 0]
+    centre = points.mean(axis=0)
+    scale = float(np.sqrt(np.mean(np.sum((points - centre) ** 2, axis=1))))
+    x = (points - centre) / scale
+    lines = np.concatenate([np.cross(x, normals), normals], axis=1)
+    norm = np.diag([1.0, 1.0, 1.0, 1e-9, 1e-9, 1e-9])
+    values, vectors = eigh(lines.T @ lines, norm)
+    # the gap on all the points: dropping the ones that miss a line makes any line look clearer
+    if not values[0] < AXIS_GAP * values[1]:
+        return None
+    miss = np.abs(lines @ vectors[:, 0])
+    keep = miss <= np.quantile(miss, 0.8)
+    vectors = eigh(lines[keep].T @ lines[keep], norm)[1]
+    a, moment = vectors[:3, 0], vectors[3:, 0]
+    length = float(np.linalg.norm(a))
+    a, moment = a / length, moment / length
+    # the moment is c x a for a point c on the line; the nearest such point to the centroid
+    point = np.cross(a, moment) * scale + centre
+    return a, point
 
 
 def _rotations() -> np.ndarray:
@@ -703,19 +765,16 @@ class PartialFitter:
         return replace(_fit(self, y, nrm, noise, rng), n_points=len(points), n_planar=dropped)
 
 
-def _fit(prep: PartialFitter, y_all: np.ndarray, n_all, noise, rng) -> PartialFit:
-    model, k, fitter, fit_idx, calibrate = prep.model, prep.k, prep.fitter, prep.fit_idx, prep.calibrate
-    calibration = prep.calibration
-    kk = fitter.k  # the model's modes, and the misfit modes of the calibration
-    mean = model.mean_
+def _group_search(prep: PartialFitter, ys: np.ndarray, ns, start_noise: float, ws: np.ndarray) -> list:
+    """Candidate poses when the points show no axis: ``(objective, rotation, translation, coefficients)``.
 
-    def subset(count: int) -> np.ndarray:
-        return np.sort(rng.choice(len(y_all), count, replace=False)) if len(y_all) > count else np.arange(len(y_all))
-
-    # pose search: trimmed rigid ICP of a subset against the mean, from every rotation of the group
-    s_idx = subset(SEARCH_POINTS)
-    ys = y_all[s_idx]
-    ns = None if n_all is None else n_all[s_idx]
+    Trimmed rigid ICP of the points ``ys`` against the mean from every
+    rotation of the icosahedral group; the best distinct rotations screened
+    by a short fit with the modes (the mean alone ranks them poorly); the
+    best of those also turned about the fruit's axis, which a view of one
+    side often leaves open. Sorted, best first.
+    """
+    fitter, kk, mean, fit_idx = prep.fitter, prep.fitter.k, prep.model.mean_, prep.fit_idx
     tree, mean_normals = prep.tree, prep.mean_normals
     cos_max = np.cos(np.radians(NORMAL_ANGLE))
     # every rotation at once: (R, m, 3) points, one query and one batch of 3 x 3 SVDs per iteration
@@ -756,11 +815,6 @@ def _fit(prep: PartialFitter, y_all: np.ndarray, n_all, noise, rng) -> PartialFi
         if len(screened) == SCREENED:
             break
 
-    # the mean alone ranks rotations poorly: each is fitted briefly with the modes; then the best one
-    # turned about the fruit's axis, which a view of one side often leaves open
-    start_noise = START_NOISE_MM if noise == "auto" else float(noise)
-    ws = _weights(ys, START_CORRELATION_MM)
-
     def screen(rotation, translation):  # short, with the mean's normals: the candidates alike
         rot, tr, c = fitter.fit(ys, ns, rotation, translation, np.zeros(kk), start_noise, SCREEN_ITERATIONS, ws,
                                 normals=mean_normals)
@@ -773,6 +827,64 @@ def _fit(prep: PartialFitter, y_all: np.ndarray, n_all, noise, rng) -> PartialFi
         twist = rotation_about(axis.direction, turn)
         short.append(screen(twist @ rot_b, twist @ (tr_b - axis.centre) + axis.centre))
     short.sort(key=lambda t: t[0])
+    return short
+
+
+def _axis_starts(prep, y_all: np.ndarray, ys: np.ndarray, rng) -> list:
+    """Starts with the model's axis on the points' axis of revolution (:func:`_revolution_axis`).
+
+    Either end up, turned about the axis in ``AXIS_TURNS`` steps; each
+    placed by a few translation-only ICP steps against the mean. Empty when
+    the points show no clear axis.
+    """
+    found = _revolution_axis(y_all, rng) if AXIS_TURNS else None
+    if found is None:
+        return []
+    direction, point = found
+    axis = prep.axis
+    target = prep.model.mean_[prep.fit_idx]
+    starts = []
+    for end in (1.0, -1.0):
+        onto = _rotation_between(end * direction, axis.direction)
+        for turn in np.arange(AXIS_TURNS) * (2.0 * np.pi / AXIS_TURNS):
+            rotation = rotation_about(axis.direction, turn) @ onto
+            # the points' axis on the model's; along it, centroid on centroid
+            p = ys @ rotation.T
+            shift = axis.centre - rotation @ point
+            along = axis.direction @ (axis.centre - (p.mean(axis=0) + shift))
+            translation = shift + along * axis.direction
+            for _ in range(SEARCH_ITERATIONS):
+                dist, j = prep.tree.query(p + translation)
+                keep = _trim(dist)
+                translation = translation + (target[j[keep]] - (p[keep] + translation)).mean(axis=0)
+            starts.append((rotation, translation))
+    return starts
+
+
+def _fit(prep: PartialFitter, y_all: np.ndarray, n_all, noise, rng) -> PartialFit:
+    model, k, fitter, calibrate = prep.model, prep.k, prep.fitter, prep.calibrate
+    calibration = prep.calibration
+    kk = fitter.k  # the model's modes, and the misfit modes of the calibration
+
+    def subset(count: int) -> np.ndarray:
+        return np.sort(rng.choice(len(y_all), count, replace=False)) if len(y_all) > count else np.arange(len(y_all))
+
+    s_idx = subset(SEARCH_POINTS)
+    ys = y_all[s_idx]
+    ns = None if n_all is None else n_all[s_idx]
+    start_noise = START_NOISE_MM if noise == "auto" else float(noise)
+    ws = _weights(ys, START_CORRELATION_MM)
+    starts = _axis_starts(prep, y_all, ys, rng)
+    if starts:
+        # a few iterations with the shape's own normals rank the starts as the full fit would
+        # (with the mean's normals they turned away from the right axis; docs/design-notes.md)
+        def rank(rotation, translation):
+            rot, tr, c = fitter.fit(ys, ns, rotation, translation, np.zeros(kk), start_noise, AXIS_ITERATIONS, ws)
+            return fitter.objective(ys, ns, rot, tr, c, start_noise, ws)[0], rot, tr, c
+
+        short = sorted((rank(rot, tr) for rot, tr in starts), key=lambda t: t[0])
+    else:
+        short = _group_search(prep, ys, ns, start_noise, ws)
     finalists = []
     for candidate in short:
         if all(rotation_angle(candidate[1] @ other[1].T) > 20.0 for other in finalists):
