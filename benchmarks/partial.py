@@ -48,6 +48,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -228,7 +229,8 @@ def main() -> None:
     args = ap.parse_args()
 
     from hortishape import synth
-    from hortishape.partial import PartialFitter
+    from hortishape.errors import FitWarning
+    from hortishape.partial import MISFIT_RATIO, PartialFitter
     from hortishape.surface import signed_volume, vertex_normals
 
     t0 = time.perf_counter()
@@ -279,7 +281,9 @@ def main() -> None:
                 normals = np.concatenate([normals, np.tile(-d, (len(table), 1)), rng.normal(size=(100, 3))])
             true_volume = abs(signed_volume(truth.vertices, truth.faces)) / 1000.0
             t = time.perf_counter()
-            fit = fitter.fit(points, normals=normals, random_state=0)
+            with warnings.catch_warnings():  # recorded in the row
+                warnings.simplefilter("ignore", FitWarning)
+                fit = fitter.fit(points, normals=normals, random_state=0)
             seconds = time.perf_counter() - t
             completion = surface_error(fit.vertices, fit.faces, truth)
             # per-vertex calibration: the true surface's distance along each completed vertex's normal
@@ -300,6 +304,7 @@ def main() -> None:
                 "volume_sd_ml": fit.volume_sd_ml, "volume_error_pct": 100 * (fit.volume_ml / true_volume - 1),
                 "z": (fit.volume_ml - true_volume) / fit.volume_sd_ml, "vertex_within_1sd": within1,
                 "vertex_within_2sd": within2, "seconds": seconds, "noise_mm": fit.noise_mm,
+                "point_noise_mm": fit.point_noise_mm, "warned": bool(fit.warnings),
                 "hull_completion_mm": surface_error(hull_v, hull_f, truth),
                 "hull_volume_error_pct": 100 * (hull_vol / 1000.0 / true_volume - 1),
                 "ellipsoid_completion_mm": surface_error(ell[0], ell[1], truth) if ell else float("nan"),
@@ -311,7 +316,8 @@ def main() -> None:
             print(f"{n_views} view(s) {name}: seen {fit.observed_fraction:.0%}, completion {completion:.2f} mm, "
                   f"volume {fit.volume_ml:.1f} +/- {fit.volume_sd_ml:.1f} mL (true {true_volume:.1f}, "
                   f"{row['volume_error_pct']:+.1f} %, z {row['z']:+.1f}), vertices within 1/2 SD "
-                  f"{within1:.0%}/{within2:.0%}, {seconds:.2f} s", flush=True)
+                  f"{within1:.0%}/{within2:.0%}, {seconds:.2f} s, residuals {fit.noise_mm / fit.point_noise_mm:.2f} "
+                  f"times the points' own noise{' (warned)' if fit.warnings else ''}", flush=True)
 
     print()
     print("views  seen  completion mm (max)  volume err % mean |max|  SD % mean  rms z  true within 1 SD / 2 SD  "
@@ -332,6 +338,10 @@ def main() -> None:
               f"   {col('hull_completion_mm').mean():.2f} / {np.abs(col('hull_volume_error_pct')).mean():.1f}"
               f"      {np.nanmean(col('ellipsoid_completion_mm')):.2f} / {np.nanmean(np.abs(col('ellipsoid_volume_error_pct'))):.1f}"
               f"        {col('mean_completion_mm').mean():.2f} / {np.abs(col('mean_volume_error_pct')).mean():.1f}")
+    for n_views in args.views:
+        r = [x for x in rows if x["views"] == n_views]
+        print(f"{n_views} view(s): {sum(x['warned'] for x in r)} of {len(r)} fits warned about (residuals above "
+              f"{MISFIT_RATIO:g} times the points' own noise)")
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))
 

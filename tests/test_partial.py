@@ -60,6 +60,21 @@ def test_one_side_of_an_egg_in_any_pose_gives_the_whole_egg_and_its_volume(spher
     np.testing.assert_allclose(fit.pose[:3, :3] @ fit.pose[:3, :3].T, np.eye(3), atol=1e-9)
     figures = fit.as_dict()
     assert figures["volume_ml"] == fit.volume_ml and len(figures["pose"]) == 4
+    # an egg like the model's: explained down to the points' own noise, nothing to warn about
+    assert 0.1 < fit.point_noise_mm < 0.2 and fit.warnings == () and figures["warnings"] == []
+
+
+def test_a_fruit_the_model_cannot_represent_is_warned_about(sphere, egg_model):
+    from hortishape.errors import FitWarning
+
+    # eight ribs 2 mm high: no egg of the model has them
+    v = sphere.vertices * [40.0, 38.0, 45.0]
+    v[:, :2] *= (1.0 + 0.05 * np.cos(8.0 * np.arctan2(v[:, 1], v[:, 0])))[:, None]
+    ribbed = Mesh(v, sphere.faces)
+    view = depth_view(ribbed, [0.3, -1.0, 0.2], noise=0.2, random_state=0)
+    with pytest.warns(FitWarning, match="far worse than their own noise"):
+        fit = fit_partial(egg_model, view.points, normals=view.normals)
+    assert fit.noise_mm > 2.0 * fit.point_noise_mm and len(fit.warnings) == 1
 
 
 def test_a_table_and_stray_points_are_left_out(sphere, egg_model):

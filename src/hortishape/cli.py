@@ -722,7 +722,9 @@ def _add_fit(sub) -> None:
         "in any pose, stray points such as a table are left out) and completes it: the whole surface with the "
         "model's vertex order in the scan's coordinates, the posterior SD of every vertex and of the volume. "
         "Writes, in the --out folder, <stem>.ply (with the vertex property sd_mm), <stem>.json (volume_ml, "
-        "volume_sd_ml, pose, coefficients, residual, share seen), <stem>.sd.npy and <stem>.png.")
+        "volume_sd_ml, pose, coefficients, residual, share seen), <stem>.sd.npy and <stem>.png. Warns when "
+        "the residuals are far above the points' own noise: a fruit the model cannot represent, whose unseen "
+        "side may be off by more than the SD says.")
     g.add_argument("--partial", action="store_true", help="SCAN shows part of the fruit: complete it")
     g.add_argument("--noise", type=_positive_float, default=None, metavar="MM",
                    help="the points' noise, SD in mm (default: estimated from the fit)")
@@ -765,14 +767,19 @@ def _run_fit(args) -> int:
 
 
 def _run_fit_partial(model, args) -> int:
+    import warnings
+
+    from .errors import FitWarning
     from .io import read_points
     from .partial import fit_partial, write_partial_fit
 
     cloud = read_points(args.scan)
     points = cloud.points * args.scale
     try:
-        fit = fit_partial(model, points, normals=cloud.normals, modes=args.modes,
-                          noise="auto" if args.noise is None else args.noise, random_state=args.seed)
+        with warnings.catch_warnings():  # said below, once, with the scan's name
+            warnings.simplefilter("ignore", FitWarning)
+            fit = fit_partial(model, points, normals=cloud.normals, modes=args.modes,
+                              noise="auto" if args.noise is None else args.noise, random_state=args.seed)
     except HortishapeError as exc:
         raise HortishapeError(f"{args.scan}: {exc}") from None
     stem = args.scan.stem
@@ -787,6 +794,8 @@ def _run_fit_partial(model, args) -> int:
     sds = " ".join(f"{b:+.2f}" for b in fit.coefficients[: min(10, len(fit.coefficients))])
     print(f"coefficients (SD, first {min(10, len(fit.coefficients))} modes): {sds}")
     print(f"wrote {files['mesh']}, {files['json'].name}, {files['sd'].name}, {files['picture'].name}")
+    for note in fit.warnings:
+        print(f"hortishape: warning: {args.scan}: {note}", file=sys.stderr)
     return 0
 
 

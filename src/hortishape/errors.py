@@ -29,5 +29,9 @@ class ConvergenceWarning(UserWarning):
     """An iterative step (registration) stopped before meeting its convergence test."""
 
 
+class FitWarning(UserWarning):
+    """A partial fit needs a look: the model explains the points far worse than their own noise."""
+
+
 class ExtractionWarning(UserWarning):
     """An extracted surface needs a look: gaps were closed, the product is cut off, or of no fruit's size."""

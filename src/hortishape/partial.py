@@ -68,10 +68,18 @@ jackknife) is added, since another dozen shapes would have made another
 completion. Last, the surface not seen may lie off
 by the size of the residuals as a whole: that is added to every vertex's SD
 and, over the unseen area, to the volume's.
+
+None of this knows a fruit of another population than the model's: its
+completion can be off by more than the SD says. What such a fit shows is
+residuals far above the points' own noise (their spread about a plane
+through each point's neighbours, which no model enters); beyond
+``MISFIT_RATIO`` times that, the fit warns (:class:`~hortishape.errors.FitWarning`
+and :attr:`PartialFit.warnings`).
 """
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -80,7 +88,7 @@ from scipy.spatial import cKDTree
 
 from ._rng import RandomState, as_generator
 from .align import _rotation_between, fruit_axis, rotation_about, rotation_angle
-from .errors import HortishapeError
+from .errors import FitWarning, HortishapeError
 from .mesh import Mesh
 from .surface import closest_points, signed_volume, vertex_areas, vertex_normals
 
@@ -142,6 +150,11 @@ NORMAL_ANGLE = 60.0
 PLANE_TRIALS = 200
 PLANE_MM = 1.0
 PLANE_SHARE = 0.15
+#: A fit whose residuals exceed MISFIT_RATIO times the points' own noise (the spread of each point's
+#: MISFIT_NEIGHBOURS nearest about their plane) is warned about: the fruit may lie outside the
+#: model's population.
+MISFIT_RATIO = 2.0
+MISFIT_NEIGHBOURS = 20
 #: Refusals: too few points, a cloud flatter than this ratio of its two widest extents, too small a cloud.
 MIN_POINTS = 50
 MIN_FLATNESS = 0.05
@@ -193,6 +206,15 @@ class PartialFit:
         its rotation's angle in degrees from the best. A second pose with a
         large share means the points leave the pose open (a round fruit seen
         from one side: its turn about the axis).
+    point_noise_mm : float
+        The points' own noise, mm: the median spread of each point's
+        neighbours about their plane, which no model enters.
+    warnings : tuple of str
+        What a person should know: residuals far above the points' own noise
+        (``MISFIT_RATIO`` times) say the model cannot represent this fruit
+        where it was seen, so the completion of the side not seen, and its
+        SD, may be off (a fruit of another population than the model's).
+        Checked only when the noise is estimated (``noise="auto"``).
     """
 
     vertices: np.ndarray
@@ -212,6 +234,8 @@ class PartialFit:
     n_planar: int = 0
     poses: tuple = ()
     calibrated: bool = False
+    point_noise_mm: float = float("nan")
+    warnings: tuple = ()
 
     def as_dict(self) -> dict:
         """The figures as plain JSON-able values (no per-vertex arrays)."""
@@ -232,6 +256,8 @@ class PartialFit:
             "coefficient_sd": np.sqrt(np.diag(self.covariance)).tolist(),
             "sd_mm": {"mean": float(self.sd.mean()), "max": float(self.sd.max())},
             "poses": [{"share": p, "angle_deg": a} for p, a in self.poses],
+            "point_noise_mm": self.point_noise_mm,
+            "warnings": list(self.warnings),
         }
 
 
@@ -357,6 +383,24 @@ def _revolution_axis(points: np.ndarray, rng) -> tuple[np.ndarray, np.ndarray] |
     # the moment is c x a for a point c on the line; the nearest such point to the centroid
     point = np.cross(a, moment) * scale + centre
     return a, point
+
+
+def _point_noise(points: np.ndarray, rng) -> float:
+    """The points' own noise, mm: the median RMS of each point's neighbours about their plane.
+
+    Corrected for the plane's three fitted parameters; a fruit's curvature
+    over a few neighbours adds little (an apple's 40 mm radius bends 20
+    points 1 mm apart by a few hundredths of a millimetre).
+    """
+    k = MISFIT_NEIGHBOURS
+    if len(points) <= k:
+        return float("nan")
+    # neighbours among all the points: a subset's are farther apart, and the surface bends between them
+    query = points[rng.choice(len(points), AXIS_POINTS, replace=False)] if len(points) > AXIS_POINTS else points
+    _, near = cKDTree(points).query(query, k)
+    hood = points[near] - points[near].mean(axis=1, keepdims=True)
+    least = np.linalg.eigvalsh(np.einsum("nki,nkj->nij", hood, hood))[:, 0]
+    return float(np.sqrt(np.median(np.maximum(least, 0.0) / (k - 3))))
 
 
 def _rotations() -> np.ndarray:
@@ -762,7 +806,10 @@ class PartialFitter:
         kept, kept_normals, dropped = _drop_planes(y, nrm, self.extent, rng)
         if dropped:
             y, nrm = _check_points(kept, kept_normals, self.extent)
-        return replace(_fit(self, y, nrm, noise, rng), n_points=len(points), n_planar=dropped)
+        fit = replace(_fit(self, y, nrm, noise, rng), n_points=len(points), n_planar=dropped)
+        for note in fit.warnings:
+            warnings.warn(note, FitWarning, stacklevel=2)
+        return fit
 
 
 def _group_search(prep: PartialFitter, ys: np.ndarray, ns, start_noise: float, ws: np.ndarray) -> list:
@@ -952,6 +999,12 @@ def _fit(prep: PartialFitter, y_all: np.ndarray, n_all, noise, rng) -> PartialFi
     sd = np.sqrt(sd**2 + sigma**2)
     volume_sd = float(np.sqrt(volume_sd**2 + (sigma * areas[~seen].sum()) ** 2))
     residual = float(closest_points(Mesh(completed, model.faces_), kept_points).distances.mean())
+    point_noise = _point_noise(y_all, rng)
+    notes = []
+    if noise == "auto" and sigma > MISFIT_RATIO * point_noise:
+        notes.append(f"the model explains these points far worse than their own noise (residuals "
+                     f"{sigma:.2f} mm against {point_noise:.2f} mm): this fruit may lie outside the model's "
+                     "population, and the completion of the side not seen, and its SD, may be off")
     best = rotation
     # the model's own coefficients (in its SD) and their covariance
     to_model = np.sqrt(calibration.mode_scale) if calibration is not None else np.ones(k)
@@ -962,7 +1015,7 @@ def _fit(prep: PartialFitter, y_all: np.ndarray, n_all, noise, rng) -> PartialFi
         volume_ml=float(volume) / 1000.0, volume_sd_ml=float(volume_sd) / 1000.0, residual_mm=residual, noise_mm=sigma,
         observed_fraction=observed, n_points=len(y_all), n_kept=int(keep.sum()), correlation_mm=length,
         poses=tuple((float(p_m), rotation_angle(best @ f[0].T)) for (_, f), p_m in zip(scored, share)),
-        calibrated=calibration is not None,
+        calibrated=calibration is not None, point_noise_mm=point_noise, warnings=tuple(notes),
     )
 
 
