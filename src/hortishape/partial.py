@@ -340,6 +340,16 @@ def _drop_planes(points: np.ndarray, normals, model_extent: float, rng) -> tuple
     return points, normals, dropped
 
 
+def _neighbour_scatter(points: np.ndarray, query: np.ndarray, k: int) -> np.ndarray:
+    """``(len(query), 3, 3)`` scatter matrices of each query point's ``k`` nearest ``points`` about their mean.
+
+    Their least eigenvector is the local plane's normal, their least eigenvalue the spread across it.
+    """
+    _, near = cKDTree(points).query(query, k)
+    hood = points[near] - points[near].mean(axis=1, keepdims=True)
+    return np.einsum("nki,nkj->nij", hood, hood)
+
+
 def _revolution_axis(points: np.ndarray, rng) -> tuple[np.ndarray, np.ndarray] | None:
     """The line the points' normal lines meet best: ``(direction, a point on it)``, or None when unclear.
 
@@ -362,9 +372,7 @@ def _revolution_axis(points: np.ndarray, rng) -> tuple[np.ndarray, np.ndarray] |
         points = points[rng.choice(len(points), AXIS_POINTS, replace=False)]
     if len(points) < 2 * AXIS_NEIGHBOURS:
         return None
-    _, near = cKDTree(points).query(points, AXIS_NEIGHBOURS)
-    hood = points[near] - points[near].mean(axis=1, keepdims=True)
-    normals = np.linalg.eigh(np.einsum("nki,nkj->nij", hood, hood))[1][:, :, 0]
+    normals = np.linalg.eigh(_neighbour_scatter(points, points, AXIS_NEIGHBOURS))[1][:, :, 0]
     centre = points.mean(axis=0)
     scale = float(np.sqrt(np.mean(np.sum((points - centre) ** 2, axis=1))))
     x = (points - centre) / scale
@@ -397,9 +405,7 @@ def _point_noise(points: np.ndarray, rng) -> float:
         return float("nan")
     # neighbours among all the points: a subset's are farther apart, and the surface bends between them
     query = points[rng.choice(len(points), AXIS_POINTS, replace=False)] if len(points) > AXIS_POINTS else points
-    _, near = cKDTree(points).query(query, k)
-    hood = points[near] - points[near].mean(axis=1, keepdims=True)
-    least = np.linalg.eigvalsh(np.einsum("nki,nkj->nij", hood, hood))[:, 0]
+    least = np.linalg.eigvalsh(_neighbour_scatter(points, query, k))[:, 0]
     return float(np.sqrt(np.median(np.maximum(least, 0.0) / (k - 3))))
 
 
