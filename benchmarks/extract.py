@@ -497,8 +497,9 @@ def real_shape_volume(name: str, modality: str, seed: int):
     MRI: 0.39 x 0.39 x 1 mm voxels, 8-bit, Rician noise 2-4; CT: 0.6 mm voxels, int16, Gaussian
     noise 15-40 and blur. Partial volume: each voxel the mean of 2 x 2 x 4 (MRI) or 2 x 2 x 2 (CT)
     points, the depth at each from the voxel centre's distance to the surface, to first order.
-    Returns ``(Volume, truth)``: the truth is a ``Mesh`` of the scan's surface in the volume's world
-    coordinates (mm).
+    Returns ``(Volume, truth, skin)``: the truth is a ``Mesh`` of the scan's surface in the volume's
+    world coordinates (mm), ``skin`` the outermost layer's thickness (mm) and its brightness over the
+    flesh's.
     """
     from scipy import ndimage
     from scipy.spatial.transform import Rotation
@@ -590,7 +591,7 @@ def real_shape_volume(name: str, modality: str, seed: int):
     else:
         data = _gaussian(data, 0.5) + rng.normal(0, noise, shape)
         data = np.clip(np.rint(data), -1000, 3000).astype(np.int16)
-    return Volume(data, spacing=spacing), truth
+    return Volume(data, spacing=spacing), truth, (skin_t, skin_v / flesh)
 
 
 def real_shapes(seed: int) -> list[dict]:
@@ -602,10 +603,12 @@ def real_shapes(seed: int) -> list[dict]:
 
     rows = []
     print(f"\nReal fruit shapes (YCB scans) as MRI-like and CT-like volumes (seed {seed})")
-    print(f"{'fruit':>15}{'kind':>7}{'level':>16}{'gap':>5}{'genus':>6}{'mean mm':>9}{'voxel':>7}{'volume %':>10}{'s':>6}")
+    print(f"{'fruit':>15}{'kind':>7}{'skin mm, x flesh':>17}{'level':>16}{'gap':>5}{'genus':>6}{'mean mm':>9}"
+          f"{'voxel':>7}{'volume %':>10}{'s':>6}")
     for i, name in enumerate(REAL_SHAPES):
         for modality in ("MRI", "CT"):
-            vol, truth = real_shape_volume(name, modality, seed + i)
+            vol, truth, (skin_mm, skin_ratio) = real_shape_volume(name, modality, seed + i)
+            skin = f"{skin_mm:.2f} x{skin_ratio:.2f}"
             t0 = time.perf_counter()
             try:
                 with warnings.catch_warnings():
@@ -613,16 +616,17 @@ def real_shapes(seed: int) -> list[dict]:
                     ext = extract_surface(vol)
             except VolumeError as exc:
                 rows.append({"fruit": name, "kind": modality, "failed": str(exc)})
-                print(f"{name:>15}{modality:>7}  failed: {exc}")
+                print(f"{name:>15}{modality:>7}{skin:>17}  failed: {exc}")
                 continue
             seconds = time.perf_counter() - t0
             there = closest_points(truth, ext.mesh.vertices).distances.mean()
             back = closest_points(ext.mesh, truth.vertices).distances.mean()
             mean = float(max(there, back))
             error = 100.0 * (ext.volume / signed_volume(truth.vertices, truth.faces) - 1.0)
-            rows.append({"fruit": name, "kind": modality, "mean_distance_mm": mean, "volume_error_percent": error,
+            rows.append({"fruit": name, "kind": modality, "skin_mm": skin_mm, "skin_over_flesh": skin_ratio,
+                         "mean_distance_mm": mean, "volume_error_percent": error,
                          "genus": ext.genus, "gap_mm": ext.gap_mm, "level_method": ext.levels.method})
-            print(f"{name:>15}{modality:>7}{f'{ext.levels.level:.4g} {ext.levels.method}':>16}{ext.gap_mm:>5g}"
+            print(f"{name:>15}{modality:>7}{skin:>17}{f'{ext.levels.level:.4g} {ext.levels.method}':>16}{ext.gap_mm:>5g}"
                   f"{ext.genus:>6}{mean:>9.3f}{mean / vol.spacing[0]:>7.3f}{error:>+10.2f}{seconds:>6.1f}", flush=True)
     return rows
 

@@ -725,21 +725,22 @@ def test_gaps_closed_next_to_the_border_leave_no_cap():
     assert ext.volume == pytest.approx(4 / 3 * np.pi * 25.0**3, rel=0.005)
 
 
-def _thin_peel_ball(seed=0, radius=20.0, peel=0.5, rind=3.0, core=8.0, pixel=0.5, slice_mm=2.0, shift=(0, 0, 0)):
+def _thin_peel_ball(seed=0, radius=20.0, peel=0.5, rind=3.0, core=8.0, pixel=0.5, slice_mm=2.0, shift=(0, 0, 0),
+                    peel_value=90.0, flesh=80.0):
     """An MRI-like ball (mm) in slices four times as thick as its pixels, 48 mm across: a bright
     peel ``peel`` thick (thinner than a slice) over a dark rind, bright flesh around a dark core
     that runs from pole to pole. Partial volume from 2 x 2 x 4 points per voxel, Rician noise.
     Its centre ``shift`` (mm) from the field's."""
-    n_xy, n_z = int(round(48 / pixel)), int(round(48 / slice_mm))
+    n_xy, n_z = int(np.ceil(48 / pixel)), int(np.ceil(48 / slice_mm))
     sub = (2, 2, 4)
     axes = [(np.arange(n)[:, None] + (np.arange(k) + 0.5) / k).ravel() * h - 24.0 - c
             for n, k, h, c in ((n_xy, sub[0], pixel, shift[0]), (n_xy, sub[1], pixel, shift[1]),
                                (n_z, sub[2], slice_mm, shift[2]))]
     x, y, z = np.meshgrid(*axes, indexing="ij")
     d = np.sqrt(x**2 + y**2 + z**2) - radius
-    v = np.where(d <= 0, 90.0, 3.0)
+    v = np.where(d <= 0, peel_value, 3.0)
     v[d <= -peel] = 8.0
-    v[(d <= -peel - rind) & (np.hypot(x, y) >= core)] = 80.0
+    v[(d <= -peel - rind) & (np.hypot(x, y) >= core)] = flesh
     v = v.reshape(n_xy, sub[0], n_xy, sub[1], n_z, sub[2]).mean(axis=(1, 3, 5))
     rng = np.random.default_rng(seed)
     v = np.hypot(v + rng.normal(0, 2.0, v.shape), rng.normal(0, 2.0, v.shape))
@@ -783,6 +784,31 @@ def test_gaps_that_close_a_pole_left_open_do_not_sink_it(shift):
     centre = 24.0 + np.asarray(shift) - 0.5 * vol.spacing
     radial = np.linalg.norm(ext.mesh.vertices - centre, axis=1)
     assert np.abs(radial - 20.0).mean() < 0.3
+
+
+def test_a_skin_sharper_than_a_voxel_keeps_the_level_above_the_background():
+    # a bright skin 0.4 mm thick over the flesh, 0.39 mm pixels, no blur but the voxels': the
+    # edge's first estimate, on a line through the steepest point, ran below the background
+    # (before: "the object above the level -13.5 touches all six faces")
+    vol = _thin_peel_ball(peel=0.4, rind=0.0, pixel=0.39, slice_mm=1.0, shift=(0.1, -0.05, 0.2),
+                          peel_value=133.0, flesh=100.0)
+    ext = extract_surface(vol)
+    assert ext.levels.level > ext.levels.background + 0.25 * (ext.levels.foreground - ext.levels.background)
+    assert ext.genus == 0
+    assert ext.volume == pytest.approx(4 / 3 * np.pi * 20.0**3, rel=0.015)
+
+
+@pytest.mark.parametrize("peel, value", [(0.7, 70.0), (0.6, 75.0)])
+def test_a_dim_skin_too_thin_to_fill_the_window_sets_the_level(peel, value):
+    # a skin 0.7-0.75 times the flesh, under 2 mm thick: the rays' brightest voxel within the
+    # window is the flesh's, and the level half-way to the flesh lay inside the skin (before:
+    # -2.2 and -1.6 %); the profile pauses on the skin, and the level is fitted on its edge
+    vol = _thin_peel_ball(peel=peel, rind=0.0, pixel=0.39, slice_mm=1.0, shift=(0.1, -0.05, 0.2),
+                          peel_value=value, flesh=100.0)
+    ext = extract_surface(vol)
+    assert ext.levels.method == "outer"
+    assert ext.levels.level < 0.5 * (ext.levels.background + ext.levels.foreground)
+    assert ext.volume == pytest.approx(4 / 3 * np.pi * 20.0**3, rel=0.005)
 
 
 def test_strong_noise_leaves_one_surface():

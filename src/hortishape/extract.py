@@ -15,11 +15,12 @@ millimetres, the kind of scan the rest of hortishape works on:
    scanner the iso-surface at that level runs through the true edge, to a
    small fraction of a voxel. When the first tissue is of another
    brightness (MRI: a thin bright peel over a dark rind, brighter flesh
-   inside), the level is the value on the outer boundary of a model of the
-   layers (blurred steps, and the noise floor of a magnitude image) fitted
-   to the rays' profile across the edge: it holds on a peel too thin to
-   reach its full brightness, and is not lifted by MRI's magnitude noise in
-   the background. Across thick slices a peel thinner than a slice fills
+   inside, or a skin dimmer than the flesh, which shows in the rays' mean
+   profile as a step that pauses before the flesh), the level is the value
+   on the outer boundary of a model of the layers (blurred steps, and the
+   noise floor of a magnitude image) fitted to the rays' profile across the
+   edge: it holds on a peel too thin to reach its full brightness, and is
+   not lifted by MRI's magnitude noise in the background. Across thick slices a peel thinner than a slice fills
    only a share of one and can stay below that level at the poles; rays
    along the slices' axis measure how bright it gets there
    (``slice_outer``), and a lower level half-way to it
@@ -174,7 +175,9 @@ SUPPORT_RADIUS_STEPS = (1.0, 2.0, 4.0)
 #: (``OUTER_ROWS`` rows sampled per axis). The tissue's intensity is the
 #: median over the rays of the brightest voxel within ``OUTER_WINDOW_MM``
 #: beyond. When it differs from the histogram's product peak by more than
-#: ``OUTER_DIFFERS`` of the contrast, the level is fitted on its edge instead.
+#: ``OUTER_DIFFERS`` of the contrast, or the rays' mean profile pauses on the
+#: way up to that peak (a dimmer skin too thin to fill the window), the level
+#: is fitted on its edge instead (:func:`_outer_layer`).
 OUTER_DETECT = 0.15
 OUTER_NOISE = 5.0
 OUTER_WINDOW_MM = 2.0
@@ -186,15 +189,19 @@ OUTER_ANGLE = 20.0
 OUTER_BEFORE_MM = 3.0
 OUTER_AFTER_MM = 6.0
 OUTER_BIN_MM = 0.05
-#: An outer tissue whose rays' mean profile (smoothed over
-#: ``OUTER_STEP_SMOOTH_MM``) is one blurred step up to the product's peak is
-#: the scanner's blur, not a tissue: no dip and no slope rising again by more
-#: than ``OUTER_STEP_SLACK`` of the contrast or of the steepest slope.
-OUTER_STEP_SMOOTH_MM = 0.2
+#: A rays' mean profile (smoothed over ``OUTER_STEP_SMOOTH`` of the finest
+#: voxel edge: less than a thin skin, more than the noise of the fewer rays
+#: per bin of a coarse volume) that is one blurred step up to the product's
+#: peak is the scanner's blur, not a tissue: no dip and no slope rising again
+#: by more than ``OUTER_STEP_SLACK`` of the contrast or of the steepest slope.
+OUTER_STEP_SMOOTH = 0.25
 #: The outer edge's steepest point is sought within this distance of where
 #: the rays cross its edge value.
 OUTER_STEP_NEAR_MM = 1.0
 OUTER_STEP_SLACK = 0.1
+#: Where the rays' brightest voxel is near the product's peak, the profile is
+#: read until it comes within this share of the contrast of the peak.
+OUTER_STEP_TOP = 0.1
 #: The fitted level is kept under this share of the way from the background
 #: to the outer tissue's peak.
 OUTER_MAX_SHARE = 0.75
@@ -408,10 +415,10 @@ def intensity_levels(volume, *, level: float | None = None, name: str = "volume"
     noise = (math.sqrt(np.average((centres[below_bg] - bg) ** 2, weights=counts[below_bg]))
              if counts[below_bg].sum() else 0.0)
     outer, edge, rays = _outer_intensity(vol, bg, fg, noise)
-    # the rays' edge profile, once: both the blur test and the layer model read it
-    profile = (_edge_profile(rays, edge) if math.isfinite(outer) and abs(outer - fg) > OUTER_DIFFERS * abs(fg - bg)
-               else None)
-    if profile is not None and not _one_blurred_step(profile, bg, fg):
+    level, method = 0.5 * (bg + fg), "peaks"
+    # the rays' edge profile, once: both the layer test and the layer model read it
+    profile = _edge_profile(rays, edge) if math.isfinite(outer) and edge > bg else None
+    if profile is not None and _outer_layer(profile, outer, bg, fg, float(np.min(vol.spacing))):
         # magnitude images (MRI) have no values below 0 and their background near 0
         magnitude = vmin >= 0 and bg < 0.1 * (fg - bg)
         fitted = _edge_level(profile, bg, outer, magnitude)
@@ -419,9 +426,9 @@ def intensity_levels(volume, *, level: float | None = None, name: str = "volume"
         # is at least twice as thick as the blur: a fit above that is one a coarse
         # profile could not fix (a thin peel's brightness and thickness trade off)
         top = bg + OUTER_MAX_SHARE * (outer - bg)
-        level, method = (min(fitted, top) if math.isfinite(fitted) else edge), "outer"
-    else:
-        level, method = 0.5 * (bg + fg), "peaks"
+        fitted = min(fitted, top) if math.isfinite(fitted) else edge
+        if fitted > bg:
+            level, method = fitted, "outer"
     segment, across = level, float("nan")
     if fg > bg:
         detect = _detect_level(bg, fg, noise)
@@ -519,7 +526,11 @@ def _outer_intensity(vol: Volume, background: float, foreground: float, noise: f
             g0, g1, g2 = (rise[np.arange(len(r)), np.clip(j + d, 0, rise.shape[1] - 1)] for d in (-1, 0, 1))
             curve = g0 - 2.0 * g1 + g2
             shift = np.clip(np.divide(0.5 * (g0 - g2), curve, out=np.zeros_like(curve), where=curve < 0), -0.5, 0.5)
-            edges.append(r[np.arange(len(r)), i] + shift * 0.5 * g1)
+            # within the two voxels either side: across a step sharper than a voxel the line
+            # through the steepest point runs far beyond them (below the background)
+            ray = np.arange(len(r))
+            a, b = r[ray, i - 1], r[ray, i + 1]
+            edges.append(np.clip(r[ray, i] + shift * 0.5 * g1, np.minimum(a, b), np.maximum(a, b)))
     if not maxima or sum(map(len, maxima)) < OUTER_MIN_RAYS:
         return float("nan"), float("nan"), []
     outer = float(np.median(np.concatenate(maxima)))
@@ -613,43 +624,63 @@ def _edge_profile(rays, level: float):
     return centre[full], total[full] / count[full], count[full]
 
 
-def _one_blurred_step(profile, background: float, foreground: float) -> bool:
-    """Whether the rays' mean profile (:func:`_edge_profile`) is one blurred step from the
-    background to the product.
+def _step_shape(profile, background: float, foreground: float, voxel: float, reach: float):
+    """How the rays' mean profile (:func:`_edge_profile`) rises from the background to the
+    product: ``(rises_again, dips)``, or None when it cannot tell.
 
-    A scanner's blur wider than ``OUTER_WINDOW_MM`` keeps the rays' brightest
-    voxel within the window below the product's peak, as an outer tissue of
-    its own would. Along one blurred step the profile, past the outer
-    edge's steepest point (within ``OUTER_STEP_NEAR_MM`` of where the rays
-    cross the edge's value), rises ever more slowly until it reaches the product's peak
-    (within ``OUTER_DIFFERS`` of the contrast); a layer of its own shows a
-    dip (a dark rind under a bright peel) or a plateau whose slope rises
-    again (a darker rind over the flesh): by more than ``OUTER_STEP_SLACK``
-    of the steepest slope, or of the contrast for a dip.
+    Along one blurred step the profile, past the outer edge's steepest point
+    (within ``OUTER_STEP_NEAR_MM`` of where the rays cross the edge's value),
+    rises ever more slowly until it reaches the product's peak (within
+    ``reach`` of the contrast). A layer of its own shows a plateau whose
+    slope rises again (a tissue dimmer than the flesh first) or a dip (a dark
+    rind under a bright peel): by more than ``OUTER_STEP_SLACK`` of the
+    steepest slope, or of the contrast for a dip. ``voxel`` is the finest
+    voxel edge (mm): the profile is smoothed over ``OUTER_STEP_SMOOTH`` of it.
     """
     from scipy.ndimage import gaussian_filter1d
 
     u, mean, _ = profile
     if len(u) < 20:
-        return False
+        return None
     grid = np.arange(u[0], u[-1], OUTER_BIN_MM)
-    v = gaussian_filter1d(np.interp(grid, u, mean), OUTER_STEP_SMOOTH_MM / OUTER_BIN_MM)
+    v = gaussian_filter1d(np.interp(grid, u, mean), OUTER_STEP_SMOOTH * voxel / OUTER_BIN_MM)
     contrast = foreground - background
-    top = np.flatnonzero((grid >= 0.0) & (v >= foreground - OUTER_DIFFERS * contrast))
+    top = np.flatnonzero((grid >= 0.0) & (v >= foreground - reach * contrast))
     if not len(top):
-        return False
+        return None
     slope = np.gradient(v, OUTER_BIN_MM)
     # the outer edge's steepest point: near where the rays cross its edge value (u = 0),
     # not a steeper edge further in
     near = np.flatnonzero(np.abs(grid[: top[0] + 1]) <= OUTER_STEP_NEAR_MM)
     if not len(near):
-        return False
+        return None
     steepest = int(near[np.argmax(slope[near])])
     after = slope[steepest : top[0] + 1]
-    rises_again = np.max(after - np.minimum.accumulate(after)) > OUTER_STEP_SLACK * slope[steepest]
+    rises_again = bool(np.max(after - np.minimum.accumulate(after)) > OUTER_STEP_SLACK * slope[steepest])
     rest = v[steepest : top[0] + 1]
-    dips = np.max(np.maximum.accumulate(rest) - rest) > OUTER_STEP_SLACK * contrast
-    return not (rises_again or dips)
+    dips = bool(np.max(np.maximum.accumulate(rest) - rest) > OUTER_STEP_SLACK * contrast)
+    return rises_again, dips
+
+
+def _outer_layer(profile, outer: float, background: float, foreground: float, voxel: float) -> bool:
+    """Whether the rays meet a tissue of its own before the product's main one, so that the level
+    is fitted on its edge (:func:`_edge_level`) rather than half-way between the histogram's peaks.
+
+    Where the rays' brightest voxel differs from the product's peak by more
+    than ``OUTER_DIFFERS`` of the contrast, it is a tissue unless the profile
+    is one blurred step (:func:`_step_shape`): a scanner's blur wider than
+    ``OUTER_WINDOW_MM`` keeps the brightest voxel within the window below the
+    peak too. Where it is near the peak, a skin dimmer than the flesh but too
+    thin to fill the window shows only as a plateau in the profile, whose
+    slope rises again before the profile comes within ``OUTER_STEP_TOP`` of
+    the peak; a thin peel near the flesh's brightness over a dark rind (a
+    dip) is left to the peaks, which lie on its edge as well.
+    """
+    if abs(outer - foreground) > OUTER_DIFFERS * abs(foreground - background):
+        shape = _step_shape(profile, background, foreground, voxel, OUTER_DIFFERS)
+        return shape is None or any(shape)
+    shape = _step_shape(profile, background, foreground, voxel, OUTER_STEP_TOP)
+    return shape is not None and shape[0] and not shape[1]
 
 
 def _edge_level(profile, background: float, outer: float, magnitude: bool) -> float:
