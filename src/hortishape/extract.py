@@ -20,11 +20,11 @@ millimetres, the kind of scan the rest of hortishape works on:
    on the outer boundary of a model of the layers (blurred steps, and the
    noise floor of a magnitude image) fitted to the rays' profile across the
    edge: it holds on a peel too thin to reach its full brightness, and is
-   not lifted by MRI's magnitude noise in the background. Across thick slices a peel thinner than a slice fills
-   only a share of one and can stay below that level at the poles; rays
-   along the slices' axis measure how bright it gets there
-   (``slice_outer``), and a lower level half-way to it
-   (``segment_level``) is kept in reserve for step 2.
+   not lifted by MRI's magnitude noise in the background. Across thick
+   slices a peel thinner than a slice fills only a share of one and can
+   stay below that level at the poles; rays along the slices' axis measure
+   how bright it gets there (``slice_outer``), and a lower level half-way
+   to it (``segment_level``) is kept in reserve for step 2.
 2. **The product, by construction.** Outside is every voxel at or below the
    level that can be reached from the volume's border through such voxels;
    the solid is everything else, so a pepper's hollow, an apple's core and
@@ -520,15 +520,15 @@ def _outer_intensity(vol: Volume, background: float, foreground: float, noise: f
             # the steepest point of the edge, from two voxels before the hit to the window's end
             at = np.clip(first[:, None] + np.arange(-1, window)[None, :], 1, n - 2)
             rise = np.take_along_axis(r, at + 1, axis=1) - np.take_along_axis(r, at - 1, axis=1)
+            ray = np.arange(len(r))
             j = rise.argmax(axis=1)
-            i = at[np.arange(len(r)), j]
+            i = at[ray, j]
             # between voxels: the top of a parabola through the rises about the steepest
-            g0, g1, g2 = (rise[np.arange(len(r)), np.clip(j + d, 0, rise.shape[1] - 1)] for d in (-1, 0, 1))
+            g0, g1, g2 = (rise[ray, np.clip(j + d, 0, rise.shape[1] - 1)] for d in (-1, 0, 1))
             curve = g0 - 2.0 * g1 + g2
             shift = np.clip(np.divide(0.5 * (g0 - g2), curve, out=np.zeros_like(curve), where=curve < 0), -0.5, 0.5)
             # within the two voxels either side: across a step sharper than a voxel the line
             # through the steepest point runs far beyond them (below the background)
-            ray = np.arange(len(r))
             a, b = r[ray, i - 1], r[ray, i + 1]
             edges.append(np.clip(r[ray, i] + shift * 0.5 * g1, np.minimum(a, b), np.maximum(a, b)))
     if not maxima or sum(map(len, maxima)) < OUTER_MIN_RAYS:
