@@ -291,8 +291,13 @@ class IntensityLevels:
         if self.method == "given":
             return f"level {self.level:g} (given)"
         if self.method == "outer":
-            text = (f"level {self.level:.4g}: on the outer edge of the outermost tissue ({self.outer:.4g}, "
-                    f"which differs from the main tissue, {self.foreground:.4g}), fitted to rays from "
+            if abs(self.outer - self.foreground) > OUTER_DIFFERS * abs(self.foreground - self.background):
+                tissue = (f"the outermost tissue ({self.outer:.4g}, which differs from the main tissue, "
+                          f"{self.foreground:.4g})")
+            else:
+                tissue = (f"a skin dimmer than the main tissue ({self.foreground:.4g}), too thin to be read "
+                          "on its own (the rays' profile pauses on it)")
+            text = (f"level {self.level:.4g}: on the outer edge of {tissue}, fitted to rays from "
                     f"the background ({self.background:.4g})")
         else:
             text = (f"level {self.level:.4g}: half-way between the background ({self.background:.4g}) and "
