@@ -727,10 +727,11 @@ def test_gaps_closed_next_to_the_border_leave_no_cap():
 
 def _thin_peel_ball(seed=0, radius=20.0, peel=0.5, rind=3.0, core=8.0, pixel=0.5, slice_mm=2.0, shift=(0, 0, 0),
                     peel_value=90.0, flesh=80.0):
-    """An MRI-like ball (mm) in slices four times as thick as its pixels, 48 mm across: a bright
-    peel ``peel`` thick (thinner than a slice) over a dark rind, bright flesh around a dark core
-    that runs from pole to pole. Partial volume from 2 x 2 x 4 points per voxel, Rician noise.
-    Its centre ``shift`` (mm) from the field's."""
+    """An MRI-like ball (mm) in slices (by default four times as thick as its pixels), 48 mm
+    across: a peel ``peel`` thick (by default thinner than a slice, and bright) over a dark rind
+    ``rind`` thick (8; the background 3), flesh around a dark core that runs from pole to pole.
+    Partial volume from 2 x 2 x 4 points per voxel, Rician noise. Its centre ``shift`` (mm) from
+    the field's."""
     n_xy, n_z = int(np.ceil(48 / pixel)), int(np.ceil(48 / slice_mm))
     sub = (2, 2, 4)
     axes = [(np.arange(n)[:, None] + (np.arange(k) + 0.5) / k).ravel() * h - 24.0 - c
