@@ -681,6 +681,12 @@ class _Fitter:
         data = (weights * np.where(keep, r, cap) ** 2).sum() / noise**2
         return float(0.5 * data + 0.5 * c @ c), keep, j, r
 
+    def short_fit(self, y, nrm, rotation, translation, noise, iterations, weights=None, normals=None):
+        """A few iterations from a start with the mean shape: ``(objective, rotation, translation, c)``."""
+        rot, tr, c = self.fit(y, nrm, rotation, translation, np.zeros(self.k), noise, iterations, weights,
+                              normals=normals)
+        return self.objective(y, nrm, rot, tr, c, noise, weights, normals=normals)[0], rot, tr, c
+
 
 def fit_partial(
     model,
@@ -827,7 +833,7 @@ def _group_search(prep: PartialFitter, ys: np.ndarray, ns, start_noise: float, w
     best of those also turned about the fruit's axis, which a view of one
     side often leaves open. Sorted, best first.
     """
-    fitter, kk, mean, fit_idx = prep.fitter, prep.fitter.k, prep.model.mean_, prep.fit_idx
+    fitter, mean, fit_idx = prep.fitter, prep.model.mean_, prep.fit_idx
     tree, mean_normals = prep.tree, prep.mean_normals
     cos_max = np.cos(np.radians(NORMAL_ANGLE))
     # every rotation at once: (R, m, 3) points, one query and one batch of 3 x 3 SVDs per iteration
@@ -869,9 +875,8 @@ def _group_search(prep: PartialFitter, ys: np.ndarray, ns, start_noise: float, w
             break
 
     def screen(rotation, translation):  # short, with the mean's normals: the candidates alike
-        rot, tr, c = fitter.fit(ys, ns, rotation, translation, np.zeros(kk), start_noise, SCREEN_ITERATIONS, ws,
+        return fitter.short_fit(ys, ns, rotation, translation, start_noise, SCREEN_ITERATIONS, ws,
                                 normals=mean_normals)
-        return fitter.objective(ys, ns, rot, tr, c, start_noise, ws, normals=mean_normals)[0], rot, tr, c
 
     short = sorted((screen(rot, tr) for _, rot, tr in screened), key=lambda t: t[0])
     axis = prep.axis
@@ -917,7 +922,6 @@ def _axis_starts(prep, y_all: np.ndarray, ys: np.ndarray, rng) -> list:
 def _fit(prep: PartialFitter, y_all: np.ndarray, n_all, noise, rng) -> PartialFit:
     model, k, fitter, calibrate = prep.model, prep.k, prep.fitter, prep.calibrate
     calibration = prep.calibration
-    kk = fitter.k  # the model's modes, and the misfit modes of the calibration
 
     def subset(count: int) -> np.ndarray:
         return np.sort(rng.choice(len(y_all), count, replace=False)) if len(y_all) > count else np.arange(len(y_all))
@@ -931,11 +935,8 @@ def _fit(prep: PartialFitter, y_all: np.ndarray, n_all, noise, rng) -> PartialFi
     if starts:
         # a few iterations with the shape's own normals rank the starts as the full fit would
         # (with the mean's normals they turned away from the right axis; docs/design-notes.md)
-        def rank(rotation, translation):
-            rot, tr, c = fitter.fit(ys, ns, rotation, translation, np.zeros(kk), start_noise, AXIS_ITERATIONS, ws)
-            return fitter.objective(ys, ns, rot, tr, c, start_noise, ws)[0], rot, tr, c
-
-        short = sorted((rank(rot, tr) for rot, tr in starts), key=lambda t: t[0])
+        short = sorted((fitter.short_fit(ys, ns, rot, tr, start_noise, AXIS_ITERATIONS, ws) for rot, tr in starts),
+                       key=lambda t: t[0])
     else:
         short = _group_search(prep, ys, ns, start_noise, ws)
     finalists = []
