@@ -11,7 +11,7 @@ from hortishape.cli import main
 from hortishape.errors import HortishapeError
 from hortishape.mesh import Mesh
 from hortishape.model import ShapeModel
-from hortishape.partial import fit_partial
+from hortishape.partial import MISFIT_REACH, fit_partial
 from hortishape.surface import closest_points, signed_volume
 from hortishape.synth import depth_view
 
@@ -62,6 +62,7 @@ def test_one_side_of_an_egg_in_any_pose_gives_the_whole_egg_and_its_volume(spher
     assert figures["volume_ml"] == fit.volume_ml and len(figures["pose"]) == 4
     # an egg like the model's: explained down to the points' own noise, nothing to warn about
     assert 0.1 < fit.point_noise_mm < 0.2 and fit.warnings == () and figures["warnings"] == []
+    assert fit.misfit_mm == 0.0 and figures["misfit_mm"] == 0.0
 
 
 def test_a_fruit_the_model_cannot_represent_is_warned_about(sphere, egg_model):
@@ -75,6 +76,15 @@ def test_a_fruit_the_model_cannot_represent_is_warned_about(sphere, egg_model):
     with pytest.warns(FitWarning, match="far worse than their own noise"):
         fit = fit_partial(egg_model, view.points, normals=view.normals)
     assert fit.noise_mm > 2.0 * fit.point_noise_mm and len(fit.warnings) == 1
+    # what the model misses where it saw the ribs, it may miss where it saw nothing: the unseen
+    # vertices' SD and the volume's carry MISFIT_REACH times it
+    assert fit.misfit_mm > 0.5
+    reach = MISFIT_REACH * fit.misfit_mm
+    assert np.mean(fit.sd >= reach) > 1.0 - fit.observed_fraction - 0.1
+    unseen_area = (1.0 - fit.observed_fraction) * Mesh(fit.vertices, fit.faces).to_trimesh().area
+    assert fit.volume_sd_ml * 1000.0 > 0.95 * reach * unseen_area
+    truth = signed_volume(ribbed.vertices, ribbed.faces) / 1000.0
+    assert abs(fit.volume_ml - truth) < 2.0 * fit.volume_sd_ml
 
 
 def test_a_table_and_stray_points_are_left_out(sphere, egg_model):

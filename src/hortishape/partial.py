@@ -70,11 +70,14 @@ by the size of the residuals as a whole: that is added to every vertex's SD
 and, over the unseen area, to the volume's.
 
 None of this knows a fruit of another population than the model's: its
-completion can be off by more than the SD says. What such a fit shows is
-residuals far above the points' own noise (their spread about a plane
-through each point's neighbours, which no model enters); beyond
-``MISFIT_RATIO`` times that, the fit warns (:class:`~hortishape.errors.FitWarning`
-and :attr:`PartialFit.warnings`).
+unseen side can be off by more than the model's own spread. What such a fit
+shows is residuals far above the points' own noise (their spread about a
+plane through each point's neighbours, which no model enters). What the
+model misses of the points beyond that noise (``misfit_mm``), it may miss by
+``MISFIT_REACH`` times as much, all one way, where it saw nothing: that is
+added to the SD of the unseen vertices and, over their area, of the volume.
+Beyond ``MISFIT_RATIO`` times the points' noise, the fit also warns
+(:class:`~hortishape.errors.FitWarning` and :attr:`PartialFit.warnings`).
 """
 
 from __future__ import annotations
@@ -155,6 +158,12 @@ PLANE_SHARE = 0.15
 #: model's population.
 MISFIT_RATIO = 2.0
 MISFIT_NEIGHBOURS = 20
+#: What the model misses of the points beyond their own noise (the residuals' RMS and the points'
+#: noise, in quadrature), the surface not seen may miss by this many times, all of it one way: the
+#: fit bends the modes to meet what was seen, and nothing meets what was not. Added to the SD of the
+#: unseen vertices and, over their area, of the volume (tuned on one population's model completing
+#: another's; docs/design-notes.md).
+MISFIT_REACH = 2.0
 #: Refusals: too few points, a cloud flatter than this ratio of its two widest extents, too small a cloud.
 MIN_POINTS = 50
 MIN_FLATNESS = 0.05
@@ -174,7 +183,8 @@ class PartialFit:
     sd : (n,) float64 ndarray
         Standard deviation of every vertex along the surface normal, mm: the
         larger of the posterior's and the leave-one-out's, with the residuals'
-        size added (see the module notes).
+        size added, and where the surface was not seen the model's misfit
+        (see the module notes).
     coefficients : (k,) float64 ndarray
         Posterior mean of the model's coefficients at the best pose, in its standard deviations.
     covariance : (k, k) float64 ndarray
@@ -209,6 +219,11 @@ class PartialFit:
     point_noise_mm : float
         The points' own noise, mm: the median spread of each point's
         neighbours about their plane, which no model enters.
+    misfit_mm : float
+        What the model misses of the points beyond their own noise, mm: the
+        kept points' RMS residual and ``point_noise_mm`` in quadrature (0
+        when the residuals are the points' noise). ``MISFIT_REACH`` times it
+        is added to the SD where the surface was not seen.
     warnings : tuple of str
         What a person should know: residuals far above the points' own noise
         (``MISFIT_RATIO`` times) say the model cannot represent this fruit
@@ -235,6 +250,7 @@ class PartialFit:
     poses: tuple = ()
     calibrated: bool = False
     point_noise_mm: float = float("nan")
+    misfit_mm: float = 0.0
     warnings: tuple = ()
 
     def as_dict(self) -> dict:
@@ -257,6 +273,7 @@ class PartialFit:
             "sd_mm": {"mean": float(self.sd.mean()), "max": float(self.sd.max())},
             "poses": [{"share": p, "angle_deg": a} for p, a in self.poses],
             "point_noise_mm": self.point_noise_mm,
+            "misfit_mm": self.misfit_mm,
             "warnings": list(self.warnings),
         }
 
@@ -1007,6 +1024,10 @@ def _fit(prep: PartialFitter, y_all: np.ndarray, n_all, noise, rng) -> PartialFi
     volume_sd = float(np.sqrt(volume_sd**2 + (sigma * areas[~seen].sum()) ** 2))
     residual = float(closest_points(Mesh(completed, model.faces_), kept_points).distances.mean())
     point_noise = _point_noise(y_all, rng)
+    # what the model misses of this fruit where it was seen; 0 when it is the points' own noise
+    misfit = float(np.sqrt(max(best.residual**2 - point_noise**2, 0.0))) if np.isfinite(point_noise) else 0.0
+    sd[~seen] = np.hypot(sd[~seen], MISFIT_REACH * misfit)
+    volume_sd = float(np.hypot(volume_sd, MISFIT_REACH * misfit * areas[~seen].sum()))
     notes = []
     if noise == "auto" and sigma > MISFIT_RATIO * point_noise:
         notes.append(f"the model explains these points far worse than their own noise (residuals "
@@ -1022,7 +1043,7 @@ def _fit(prep: PartialFitter, y_all: np.ndarray, n_all, noise, rng) -> PartialFi
         volume_ml=float(volume) / 1000.0, volume_sd_ml=float(volume_sd) / 1000.0, residual_mm=residual, noise_mm=sigma,
         observed_fraction=observed, n_points=len(y_all), n_kept=int(keep.sum()), correlation_mm=length,
         poses=tuple((float(p_m), rotation_angle(best @ f[0].T)) for (_, f), p_m in zip(scored, share)),
-        calibrated=calibration is not None, point_noise_mm=point_noise, warnings=tuple(notes),
+        calibrated=calibration is not None, point_noise_mm=point_noise, misfit_mm=misfit, warnings=tuple(notes),
     )
 
 
@@ -1034,6 +1055,7 @@ class _Posterior:
     volume: float  # mm^3
     volume_sd: float
     keep: np.ndarray  # the kept points
+    residual: float  # RMS of the kept points' weighted residuals, mm
 
 
 def _posterior(fitter, model, y, nrm, w, sigma, rotation, translation, c, *, calibrate: bool,
@@ -1044,7 +1066,7 @@ def _posterior(fitter, model, y, nrm, w, sigma, rotation, translation, c, *, cal
     uncertainty is theirs too: a larger fruit placed farther explains a cap
     seen from one side almost as well as a smaller one nearer.
     """
-    _, keep, j, _ = fitter.objective(y, nrm, rotation, translation, c, sigma, w)
+    _, keep, j, r = fitter.objective(y, nrm, rotation, translation, c, sigma, w)
     kk = fitter.k
     x = fitter.shape(c)
     normals_x = vertex_normals(x, model.faces_)
@@ -1076,7 +1098,8 @@ def _posterior(fitter, model, y, nrm, w, sigma, rotation, translation, c, *, cal
         volume_sd = float(np.hypot(volume_sd, jk_volume))
         if jk_sd is not None:
             sd = np.hypot(sd, jk_sd)
-    return _Posterior(x, sd, cov, volume, volume_sd, keep)
+    residual = float(np.sqrt(np.average(r[keep] ** 2, weights=w[keep])))
+    return _Posterior(x, sd, cov, volume, volume_sd, keep, residual)
 
 
 def _weights(points: np.ndarray, length: float) -> np.ndarray:
