@@ -304,7 +304,7 @@ def main() -> None:
                 "volume_sd_ml": fit.volume_sd_ml, "volume_error_pct": 100 * (fit.volume_ml / true_volume - 1),
                 "z": (fit.volume_ml - true_volume) / fit.volume_sd_ml, "vertex_within_1sd": within1,
                 "vertex_within_2sd": within2, "seconds": seconds, "noise_mm": fit.noise_mm,
-                "point_noise_mm": fit.point_noise_mm, "warned": bool(fit.warnings),
+                "point_noise_mm": fit.point_noise_mm, "misfit_mm": fit.misfit_mm, "warned": bool(fit.warnings),
                 "hull_completion_mm": surface_error(hull_v, hull_f, truth),
                 "hull_volume_error_pct": 100 * (hull_vol / 1000.0 / true_volume - 1),
                 "ellipsoid_completion_mm": surface_error(ell[0], ell[1], truth) if ell else float("nan"),
@@ -317,7 +317,8 @@ def main() -> None:
                   f"volume {fit.volume_ml:.1f} +/- {fit.volume_sd_ml:.1f} mL (true {true_volume:.1f}, "
                   f"{row['volume_error_pct']:+.1f} %, z {row['z']:+.1f}), vertices within 1/2 SD "
                   f"{within1:.0%}/{within2:.0%}, {seconds:.2f} s, residuals {fit.noise_mm / fit.point_noise_mm:.2f} "
-                  f"times the points' own noise{' (warned)' if fit.warnings else ''}", flush=True)
+                  f"times the points' own noise{' (warned)' if fit.warnings else ''}, misfit {fit.misfit_mm:.2f} mm",
+                  flush=True)
 
     print()
     print("views  seen  completion mm (max)  volume err % mean |max|  SD % mean  rms z  true within 1 SD / 2 SD  "
