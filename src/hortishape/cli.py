@@ -722,9 +722,10 @@ def _add_fit(sub) -> None:
         "in any pose, stray points such as a table are left out) and completes it: the whole surface with the "
         "model's vertex order in the scan's coordinates, the posterior SD of every vertex and of the volume. "
         "Writes, in the --out folder, <stem>.ply (with the vertex property sd_mm), <stem>.json (volume_ml, "
-        "volume_sd_ml, pose, coefficients, residual, share seen), <stem>.sd.npy and <stem>.png. Warns when "
-        "the residuals are far above the points' own noise: a fruit the model cannot represent, whose unseen "
-        "side may be off by more than the SD says.")
+        "volume_sd_ml, pose, coefficients, residual, share seen, misfit), <stem>.sd.npy and <stem>.png. What "
+        "the residuals exceed the points' own noise by (the misfit) widens the SD of the side not seen; far "
+        "above that noise it warns: a fruit the model cannot represent, whose unseen side may be off by more "
+        "than the SD says.")
     g.add_argument("--partial", action="store_true", help="SCAN shows part of the fruit: complete it")
     g.add_argument("--noise", type=_positive_float, default=None, metavar="MM",
                    help="the points' noise, SD in mm (default: estimated from the fit)")
@@ -789,7 +790,7 @@ def _run_fit_partial(model, args) -> int:
     print(f"{args.scan}: {fit.n_points:,} points{planar}, {fit.n_kept:,} of those fitted kept; "
           f"{fit.observed_fraction:.0%} of the surface seen")
     print(f"volume {fit.volume_ml:.1f} +/- {fit.volume_sd_ml:.1f} mL (1 SD); residual {fit.residual_mm:.2f} mm, "
-          f"noise {fit.noise_mm:.2f} mm")
+          f"noise {fit.noise_mm:.2f} mm (the points' own {fit.point_noise_mm:.2f} mm, misfit {fit.misfit_mm:.2f} mm)")
     print(f"SD of the surface along its normals: mean {fit.sd.mean():.2f} mm, max {fit.sd.max():.2f} mm")
     sds = " ".join(f"{b:+.2f}" for b in fit.coefficients[: min(10, len(fit.coefficients))])
     print(f"coefficients (SD, first {min(10, len(fit.coefficients))} modes): {sds}")
