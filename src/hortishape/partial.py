@@ -975,8 +975,7 @@ def _fit(prep: PartialFitter, y_all: np.ndarray, n_all, noise, rng) -> PartialFi
     _, keep, j, r = judged[0][0]
     length = _correlation_length(y[keep], r[keep], rng)
     w = _weights(y, length)
-    sigma = float(noise) if noise != "auto" else max(float(np.sqrt(np.average(r[keep] ** 2, weights=w[keep]))),
-                                                     MIN_NOISE_MM)
+    sigma = float(noise) if noise != "auto" else max(_weighted_rms(r, keep, w), MIN_NOISE_MM)
     fits = [fitter.fit(y, nrm, *f, sigma, FIT_ITERATIONS // 2, w) for f in fits]
     scored = []
     for o, f in sorted(((fitter.objective(y, nrm, *f, sigma, w)[0], f) for f in fits), key=lambda t: t[0]):
@@ -1017,17 +1016,16 @@ def _fit(prep: PartialFitter, y_all: np.ndarray, n_all, noise, rng) -> PartialFi
     areas = vertex_areas(x, model.faces_)
     seen = np.isfinite(near)
     observed = float(areas[seen].sum() / areas.sum())
-    # What the model cannot represent of this fruit is, where it was seen, the size of the residuals;
-    # where it was not seen nothing says it is smaller, nor that it averages out: the unseen surface
-    # may lie that far off as a whole.
-    sd = np.sqrt(sd**2 + sigma**2)
-    volume_sd = float(np.sqrt(volume_sd**2 + (sigma * areas[~seen].sum()) ** 2))
     residual = float(closest_points(Mesh(completed, model.faces_), kept_points).distances.mean())
     point_noise = _point_noise(y_all, rng)
     # what the model misses of this fruit where it was seen; 0 when it is the points' own noise
     misfit = float(np.sqrt(max(best.residual**2 - point_noise**2, 0.0))) if np.isfinite(point_noise) else 0.0
+    # What the model cannot represent of this fruit is, where it was seen, the size of the residuals;
+    # where it was not seen nothing says it is smaller, nor that it averages out: the unseen surface
+    # may lie that far off as a whole, and MISFIT_REACH times the misfit farther, all one way.
+    sd = np.sqrt(sd**2 + sigma**2)
     sd[~seen] = np.hypot(sd[~seen], MISFIT_REACH * misfit)
-    volume_sd = float(np.hypot(volume_sd, MISFIT_REACH * misfit * areas[~seen].sum()))
+    volume_sd = float(np.hypot(volume_sd, np.hypot(sigma, MISFIT_REACH * misfit) * areas[~seen].sum()))
     notes = []
     if noise == "auto" and sigma > MISFIT_RATIO * point_noise:
         notes.append(f"the model explains these points far worse than their own noise (residuals "
@@ -1098,8 +1096,12 @@ def _posterior(fitter, model, y, nrm, w, sigma, rotation, translation, c, *, cal
         volume_sd = float(np.hypot(volume_sd, jk_volume))
         if jk_sd is not None:
             sd = np.hypot(sd, jk_sd)
-    residual = float(np.sqrt(np.average(r[keep] ** 2, weights=w[keep])))
-    return _Posterior(x, sd, cov, volume, volume_sd, keep, residual)
+    return _Posterior(x, sd, cov, volume, volume_sd, keep, _weighted_rms(r, keep, w))
+
+
+def _weighted_rms(residuals: np.ndarray, keep: np.ndarray, weights: np.ndarray) -> float:
+    """RMS of the kept ``residuals``, each counted by its weight (its share of an observation)."""
+    return float(np.sqrt(np.average(residuals[keep] ** 2, weights=weights[keep])))
 
 
 def _weights(points: np.ndarray, length: float) -> np.ndarray:
