@@ -222,7 +222,7 @@ SLICE_SHARE = 0.5
 #: The lower level's product is kept over the level's, both whole, when it holds this share more:
 #: the level's gaps closed over a pole that a peel thinner than a slice left open.
 LOWER_GAIN = 0.01
-#: Integer voxels: the surface is meshed at least this far (intensity units) from an integer value.
+#: The surface is meshed at least this share of a step from the values the voxels take (:func:`_value_grid`).
 ISO_OFF_INTEGER = 0.05
 
 
@@ -314,16 +314,55 @@ def _as_volume(volume) -> Volume:
     return Volume(volume, spacing=1.0)
 
 
-def _histogram(data: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    """Counts, bin centres and bin width of a subsample of ``data``."""
-    n = data.size
-    step = max(1, math.ceil((n / _HISTOGRAM_SAMPLES) ** (1.0 / 3.0)))
-    sample = np.asarray(data[::step, ::step, ::step]).ravel()
+def _sample(data: np.ndarray) -> np.ndarray:
+    """About ``_HISTOGRAM_SAMPLES`` voxels of ``data``, on a regular grid."""
+    step = max(1, math.ceil((data.size / _HISTOGRAM_SAMPLES) ** (1.0 / 3.0)))
+    return np.asarray(data[::step, ::step, ::step]).ravel()
+
+
+def _value_grid(data: np.ndarray) -> tuple[float, float] | None:
+    """The grid ``(origin, step)`` that the voxel values lie on, or None.
+
+    An 8-bit MRI keeps its 256 values when it is stored as float (a NIfTI's
+    ``scl_slope``, a DICOM's rescale slope) or multiplied up: the histogram
+    is then counted in bins of that step, and the level kept off its values,
+    so the surface does not depend on how the same values are stored.
+    Read from the histogram's subsample; None when the values are not
+    on a grid of at most 65,537 values (a continuous float volume).
+    """
+    sample = _sample(data)
     lo, hi = sample.min(), sample.max()
     if sample.dtype.kind in "biu" and int(hi) - int(lo) <= 65_536:
-        values = sample.astype(np.int64) - int(lo)
-        counts = np.bincount(values, minlength=int(hi) - int(lo) + 1)
-        return counts, np.arange(int(lo), int(hi) + 1, dtype=np.float64), 1.0
+        present = np.flatnonzero(np.bincount((sample.astype(np.int64) - int(lo))))
+        step = int(np.gcd.reduce(np.diff(present))) if len(present) > 1 else 1
+        return float(lo), float(step)
+    if sample.dtype.kind not in "f":
+        return None
+    values = np.unique(sample.astype(np.float64))
+    values = values[np.isfinite(values)]
+    if len(values) < 2 or len(values) > 65_537:
+        return None
+    origin = float(values[0])
+    offset = values - origin
+    step = float(np.diff(values).min())
+    # refined on the largest value: the smallest gap carries the float's rounding
+    step = offset[-1] / max(1.0, round(offset[-1] / step))
+    k = np.rint(offset / step)
+    if k[-1] > 65_536 or np.max(np.abs(offset / step - k)) > 0.01:
+        return None
+    return origin, step
+
+
+def _histogram(data: np.ndarray, grid: tuple[float, float] | None) -> tuple[np.ndarray, np.ndarray, float]:
+    """Counts, bin centres and bin width of a subsample of ``data``: one bin per value of its
+    ``grid`` (:func:`_value_grid`), else 4096 bins."""
+    sample = _sample(data)
+    if grid is not None:
+        origin, step = grid
+        k = np.rint((sample.astype(np.float64) - origin) / step).astype(np.int64)
+        counts = np.bincount(k[k >= 0])
+        return counts, origin + step * np.arange(len(counts), dtype=np.float64), step
+    lo, hi = sample.min(), sample.max()
     counts, edges = np.histogram(sample.astype(np.float64), bins=4096, range=(float(lo), float(hi)))
     return counts, 0.5 * (edges[:-1] + edges[1:]), float(edges[1] - edges[0])
 
@@ -374,7 +413,11 @@ def intensity_levels(volume, *, level: float | None = None, name: str = "volume"
     500.0
     """
     vol = _as_volume(volume)
-    counts, centres, width = _histogram(vol.data)
+    return _intensity_levels(vol, level, name, _value_grid(vol.data))
+
+
+def _intensity_levels(vol: Volume, level: float | None, name: str, grid) -> IntensityLevels:
+    counts, centres, width = _histogram(vol.data, grid)
     data = vol.data
     vmin, vmax = float(data.min()), float(data.max())
     if vmin == vmax:
@@ -426,7 +469,7 @@ def intensity_levels(volume, *, level: float | None = None, name: str = "volume"
     if profile is not None and _outer_layer(profile, outer, bg, fg, float(np.min(vol.spacing))):
         # magnitude images (MRI) have no values below 0 and their background near 0
         magnitude = vmin >= 0 and bg < 0.1 * (fg - bg)
-        fitted = _edge_level(profile, bg, outer, magnitude)
+        fitted = _edge_level(profile, bg, outer, magnitude, unit=grid[1] if grid else 1.0)
         # a blurred edge's middle lies below OUTER_MAX_SHARE of its peak when the peel
         # is at least twice as thick as the blur: a fit above that is one a coarse
         # profile could not fix (a thin peel's brightness and thickness trade off)
@@ -526,12 +569,15 @@ def _outer_intensity(vol: Volume, background: float, foreground: float, noise: f
             at = np.clip(first[:, None] + np.arange(-1, window)[None, :], 1, n - 2)
             rise = np.take_along_axis(r, at + 1, axis=1) - np.take_along_axis(r, at - 1, axis=1)
             ray = np.arange(len(r))
-            j = rise.argmax(axis=1)
+            # the first of equal rises, also where a float's rounding tells them apart
+            j = (rise >= rise.max(axis=1, keepdims=True) - 1e-5 * (foreground - background)).argmax(axis=1)
             i = at[ray, j]
             # between voxels: the top of a parabola through the rises about the steepest
             g0, g1, g2 = (rise[ray, np.clip(j + d, 0, rise.shape[1] - 1)] for d in (-1, 0, 1))
             curve = g0 - 2.0 * g1 + g2
-            shift = np.clip(np.divide(0.5 * (g0 - g2), curve, out=np.zeros_like(curve), where=curve < 0), -0.5, 0.5)
+            # no peak where the rises run straight (a float's rounding must not make one)
+            bent = curve < -1e-5 * (foreground - background)
+            shift = np.clip(np.divide(0.5 * (g0 - g2), curve, out=np.zeros_like(curve), where=bent), -0.5, 0.5)
             # within the two voxels either side: across a step sharper than a voxel the line
             # through the steepest point runs far beyond them (below the background)
             a, b = r[ray, i - 1], r[ray, i + 1]
@@ -688,7 +734,7 @@ def _outer_layer(profile, outer: float, background: float, foreground: float, vo
     return shape is not None and shape[0] and not shape[1]
 
 
-def _edge_level(profile, background: float, outer: float, magnitude: bool) -> float:
+def _edge_level(profile, background: float, outer: float, magnitude: bool, unit: float = 1.0) -> float:
     """The intensity on the outer boundary, from a model of the layers fitted to the rays' edge
     profile (:func:`_edge_profile`, placed at the edge's first estimate).
 
@@ -701,6 +747,9 @@ def _edge_level(profile, background: float, outer: float, magnitude: bool) -> fl
     thin peels alike. In a magnitude image (MRI) the background's noise
     lifts dark voxels: the model's intensity is ``sqrt(S^2 + c^2)``, with
     ``S`` the layers' and ``c`` the noise floor. NaN when the fit fails.
+    The fit runs in ``unit`` steps of intensity (the step between the voxels'
+    values): its finite differences are not scale-free, and the same values
+    stored as floats or multiplied up must give the same level.
     """
     from scipy.optimize import least_squares
     from scipy.special import ndtr
@@ -708,6 +757,7 @@ def _edge_level(profile, background: float, outer: float, magnitude: bool) -> fl
     u, mean, count = profile
     if len(u) < 20:
         return float("nan")
+    mean, background, outer = mean / unit, background / unit, outer / unit
     weight = np.sqrt(count)
     lo_v, hi_v = float(mean.min()), float(mean.max())
     span = max(hi_v - lo_v, 1e-9)
@@ -734,7 +784,7 @@ def _edge_level(profile, background: float, outer: float, magnitude: bool) -> fl
         return float("nan")
     if not fit.success:
         return float("nan")
-    return float(model(fit.x, np.array([fit.x[0]]))[0])
+    return unit * float(model(fit.x, np.array([fit.x[0]]))[0])
 
 
 # --------------------------------------------------------------------------
@@ -1242,14 +1292,20 @@ def _surface_genus(n_vertices: int, n_faces: int) -> int:
     return (2 - (n_vertices - n_faces // 2)) // 2
 
 
-def _off_integers(level: float) -> float:
-    """``level`` kept at least ``ISO_OFF_INTEGER`` intensity units from an integer: integer voxels
-    equal to the level would put vertices on them (degenerate faces). The voxels above it stay the
-    same, and the surface keeps the level's place between integers: in an 8-bit MRI volume, whose
-    edge rises some 20 units, half a unit moves the surface by a share of a pixel that matters
+def _off_grid(level: float, grid: tuple[float, float] | None) -> float:
+    """``level`` kept at least ``ISO_OFF_INTEGER`` of a step from the values the voxels can take,
+    ``grid = (origin, step)``: the integers in an integer volume, the grid of a float volume's
+    values (:func:`_value_grid`). Voxels equal to the level would put vertices on them
+    (degenerate faces). The voxels above it stay the same, and the
+    surface keeps the level's place between two values: in an 8-bit MRI volume, whose edge
+    rises some 20 values, half a value moves the surface by a share of a pixel that matters
     (design notes)."""
-    whole = math.floor(level)
-    return whole + min(max(level - whole, ISO_OFF_INTEGER), 1.0 - ISO_OFF_INTEGER)
+    if grid is None:
+        return level
+    origin, step = grid
+    at = (level - origin) / step
+    whole = math.floor(at)
+    return origin + step * (whole + min(max(at - whole, ISO_OFF_INTEGER), 1.0 - ISO_OFF_INTEGER))
 
 
 def _check_options(smoothing, target_vertices, support_radius) -> None:
@@ -1825,7 +1881,8 @@ def extract_surface(
         inside. Default: on the boundary between the background and the
         outermost tissue (:func:`intensity_levels`). For integer voxels the
         surface is meshed at the level kept ``ISO_OFF_INTEGER`` from an
-        integer, so that no vertex falls on a voxel.
+        integer (for float voxels that take few values, that share of the
+        step between them), so that no vertex falls on a voxel.
     smoothing : int, default: 10
         Iterations of :func:`taubin_smooth` (0: none). Removes the scanner
         noise from the surface without shrinking it.
@@ -1879,10 +1936,10 @@ def extract_surface(
 
     vol = _as_volume(volume)
     _check_options(smoothing, target_vertices, support_radius)
-    levels = intensity_levels(vol, level=level, name=name)
-    iso, seg_iso = levels.level, levels.segment
-    if vol.data.dtype.kind in "biu":
-        iso, seg_iso = _off_integers(iso), _off_integers(seg_iso)
+    grid = _value_grid(vol.data)
+    levels = _intensity_levels(vol, level, name, grid)
+    values = (0.0, 1.0) if vol.data.dtype.kind in "biu" else grid
+    iso, seg_iso = _off_grid(levels.level, values), _off_grid(levels.segment, values)
     inside_value, outside_value = _fill_values(levels)
 
     def mesh_product(at: float):
