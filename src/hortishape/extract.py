@@ -202,6 +202,11 @@ OUTER_STEP_SLACK = 0.1
 #: Where the rays' brightest voxel is near the product's peak, the profile is
 #: read until it comes within this share of the contrast of the peak.
 OUTER_STEP_TOP = 0.1
+#: A magnitude image (MRI): its background within ``MAGNITUDE_NEAR`` of the contrast from its zero,
+#: and, where its values run below 0, within ``MAGNITUDE_TAIL`` times the background's noise above
+#: the smallest value (:func:`_magnitude_zero`).
+MAGNITUDE_NEAR = 0.1
+MAGNITUDE_TAIL = 3.0
 #: The fitted level is kept under this share of the way from the background
 #: to the outer tissue's peak.
 OUTER_MAX_SHARE = 0.75
@@ -467,9 +472,8 @@ def _intensity_levels(vol: Volume, level: float | None, name: str, grid) -> Inte
     # the rays' edge profile, once: both the layer test and the layer model read it
     profile = _edge_profile(rays, edge) if math.isfinite(outer) and edge > bg else None
     if profile is not None and _outer_layer(profile, outer, bg, fg, float(np.min(vol.spacing))):
-        # magnitude images (MRI) have no values below 0 and their background near 0
-        magnitude = vmin >= 0 and bg < 0.1 * (fg - bg)
-        fitted = _edge_level(profile, bg, outer, magnitude, unit=grid[1] if grid else 1.0)
+        fitted = _edge_level(profile, bg, outer, _magnitude_zero(vmin, bg, fg, noise),
+                             unit=grid[1] if grid else 1.0)
         # a blurred edge's middle lies below OUTER_MAX_SHARE of its peak when the peel
         # is at least twice as thick as the blur: a fit above that is one a coarse
         # profile could not fix (a thin peel's brightness and thickness trade off)
@@ -734,7 +738,23 @@ def _outer_layer(profile, outer: float, background: float, foreground: float, vo
     return shape is not None and shape[0] and not shape[1]
 
 
-def _edge_level(profile, background: float, outer: float, magnitude: bool, unit: float = 1.0) -> float:
+def _magnitude_zero(vmin: float, background: float, foreground: float, noise: float) -> float | None:
+    """The value of no signal in a magnitude image (MRI), or None for another kind of image.
+
+    A magnitude image has no values below its zero and its background lies
+    near it (within ``MAGNITUDE_NEAR`` of the contrast): 0 as scanners store
+    it; the smallest value where the volume runs below 0 (stored with an
+    offset, or z-scored) but the background's lower tail stops short, within
+    ``MAGNITUDE_TAIL`` times its noise (a real-valued image's Gaussian noise
+    reaches four or five times its noise below it over a volume's voxels).
+    """
+    near = MAGNITUDE_NEAR * (foreground - background)
+    if vmin >= 0:
+        return 0.0 if background < near else None
+    return vmin if background - vmin < min(near, MAGNITUDE_TAIL * noise) else None
+
+
+def _edge_level(profile, background: float, outer: float, zero: float | None, unit: float = 1.0) -> float:
     """The intensity on the outer boundary, from a model of the layers fitted to the rays' edge
     profile (:func:`_edge_profile`, placed at the edge's first estimate).
 
@@ -746,10 +766,12 @@ def _edge_level(profile, background: float, outer: float, magnitude: bool, unit:
     knows both, so the value it gives on the boundary holds for thick and
     thin peels alike. In a magnitude image (MRI) the background's noise
     lifts dark voxels: the model's intensity is ``sqrt(S^2 + c^2)``, with
-    ``S`` the layers' and ``c`` the noise floor. NaN when the fit fails.
-    The fit runs in ``unit`` steps of intensity (the step between the voxels'
-    values): its finite differences are not scale-free, and the same values
-    stored as floats or multiplied up must give the same level.
+    ``S`` the layers' and ``c`` the noise floor, both from the image's
+    ``zero`` (:func:`_magnitude_zero`; None: not a magnitude image). NaN
+    when the fit fails. The fit runs in ``unit`` steps of intensity (the
+    step between the voxels' values): its finite differences are not
+    scale-free, and the same values stored as floats or multiplied up must
+    give the same level.
     """
     from scipy.optimize import least_squares
     from scipy.special import ndtr
@@ -757,7 +779,9 @@ def _edge_level(profile, background: float, outer: float, magnitude: bool, unit:
     u, mean, count = profile
     if len(u) < 20:
         return float("nan")
-    mean, background, outer = mean / unit, background / unit, outer / unit
+    magnitude = zero is not None
+    origin = zero if magnitude else 0.0
+    mean, background, outer = (mean - origin) / unit, (background - origin) / unit, (outer - origin) / unit
     weight = np.sqrt(count)
     lo_v, hi_v = float(mean.min()), float(mean.max())
     span = max(hi_v - lo_v, 1e-9)
@@ -784,7 +808,7 @@ def _edge_level(profile, background: float, outer: float, magnitude: bool, unit:
         return float("nan")
     if not fit.success:
         return float("nan")
-    return unit * float(model(fit.x, np.array([fit.x[0]]))[0])
+    return origin + unit * float(model(fit.x, np.array([fit.x[0]]))[0])
 
 
 # --------------------------------------------------------------------------
