@@ -24,8 +24,10 @@
    of the volumes' 2). CT: cupping (beam hardening: the flesh 25 % darker at the
    centre of the slice than at its edge), ring artefacts (+-60 about the slice's
    centre, 6 voxels apart), noise sigma 150 (six times the volumes'), a wider
-   blur (Gaussian, 1.5 voxel) and a bed (a plate 4 voxels thick and as dense as
-   the flesh across the whole slice, touching the product from below). Same
+   blur (Gaussian, 1.5 voxel), a bed (a plate 4 voxels thick and as dense as
+   the flesh across the whole slice, touching the product from below) and the
+   field of view (the volume grown with air, and outside the circle the scanner
+   reconstructs one value 1000 below the air, DICOM's pixel padding). Same
    figures as 1.
 4. With ``--oranges N``: MRI volumes of an orange as issue 21 describes a real
    one (256 x 256 x 64 voxels of 0.39 x 0.39 x 1 mm, 8-bit, the fruit nearly
@@ -155,13 +157,27 @@ def _bed(d):
     return out
 
 
+def _field_of_view(d, rng):
+    """A CT's field of view: the volume grown by 35 % of its slice's width on each side with air
+    (its own background's noise), and outside the circle the scanner reconstructs, filled with one
+    value 1000 below the air (DICOM's pixel padding: -2000 HU where the air is -1000). Returns the
+    data and where the volume's first voxel now lies (voxels)."""
+    pad = int(0.35 * max(d.shape[:2]))
+    air = d[:2, :2, :]
+    out = rng.normal(float(np.median(air)), float(np.std(air)), (d.shape[0] + 2 * pad, d.shape[1] + 2 * pad, d.shape[2]))
+    out[pad : pad + d.shape[0], pad : pad + d.shape[1]] = d
+    outside = _in_plane_radius(out) > min(out.shape[:2]) / 2.0
+    return np.where(outside, float(np.median(air)) - 1000.0, out), (pad, pad, 0)
+
+
 def _gaussian(d, sigma):
     from scipy.ndimage import gaussian_filter
 
     return gaussian_filter(d, sigma)
 
 
-#: what real scanners add (``--artefacts``): kind -> name -> f(float data, rng) -> float data
+#: what real scanners add (``--artefacts``): kind -> name -> f(float data, rng) -> float data, or
+#: (float data, the old first voxel's index in it) for an artefact that grows the volume
 ARTEFACTS = {
     "MRI": {
         "bias x": lambda d, rng: d * _ramp(d, 0),
@@ -177,6 +193,7 @@ ARTEFACTS = {
         "noise 150": lambda d, rng: d + rng.normal(0.0, 150.0, d.shape),
         "blur 1.5": lambda d, rng: _gaussian(d, 1.5),
         "bed": lambda d, rng: _bed(d),
+        "field of view": _field_of_view,
     },
 }
 #: the intensity range of each kind's volumes (CT int16, MRI uint8)
@@ -189,7 +206,9 @@ def _with_artefact(vol, kind, name, seed):
 
     lo, hi, dtype = RANGE[kind]
     data = ARTEFACTS[kind][name](vol.data.astype(np.float64), np.random.default_rng(seed))
-    return Volume(np.clip(np.rint(data), lo, hi).astype(dtype), spacing=vol.spacing, origin=vol.origin,
+    data, shift = data if isinstance(data, tuple) else (data, (0, 0, 0))
+    origin = vol.origin - vol.direction @ (vol.spacing * np.asarray(shift, dtype=np.float64))
+    return Volume(np.clip(np.rint(data), lo, hi).astype(dtype), spacing=vol.spacing, origin=origin,
                   direction=vol.direction)
 
 

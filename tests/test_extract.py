@@ -947,3 +947,29 @@ def test_values_on_no_grid_are_counted_in_4096_bins():
     assert extract._value_grid(rng.normal(size=(30, 30, 30))) is None
     assert extract._value_grid(np.arange(27.0).reshape(3, 3, 3) * 0.1 - 1.0) == pytest.approx((-1.0, 0.1))
     assert extract._value_grid(np.full((3, 3, 3), 7, np.int16) + np.arange(3, dtype=np.int16) * 5) == (7.0, 5.0)
+
+
+@pytest.mark.parametrize("padding", [-2000, -3024])
+def test_outside_the_reconstructed_circle_is_not_the_background(padding):
+    # a CT in Hounsfield units: air -1000 with noise, the ball 0, and outside the circle the scanner
+    # reconstructs one value (DICOM's pixel padding). Before, that value was the background: the
+    # level fell below the air and the whole field of view came out as the product (+600 % and more)
+    n = 80
+    ball = sphere_distance(n, (39.5, 40.2, 39.7), 18.0)
+    values = ct(ball, noise=20.0, dtype=np.int16).astype(np.int32) - 1000
+    u = np.arange(n) - (n - 1) / 2.0
+    outside = np.hypot(u[:, None], u[None, :]) > n / 2.0
+    values[outside] = padding
+    ext = extract_surface(values.astype(np.int16))
+    assert ext.levels.padding == padding
+    assert ext.levels.background == pytest.approx(-1000.0, abs=5.0)
+    assert f"{padding}" in ext.levels.explain()
+    assert ext.volume == pytest.approx(4 / 3 * np.pi * 18.0**3, rel=0.005)
+
+
+def test_an_air_all_one_value_is_the_background_not_padding():
+    # air set to 0 (a noiseless volume, or one whose air was removed): the edge's partial volumes
+    # beside it are no background of their own
+    ext = extract_surface(ct(sphere_distance(48, (23.5, 23.5, 23.5), 16.0)))
+    assert not np.isfinite(ext.levels.padding) and ext.levels.background == pytest.approx(0.0, abs=1.0)
+    assert ext.volume == pytest.approx(4 / 3 * np.pi * 16.0**3, rel=0.005)

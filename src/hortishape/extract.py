@@ -7,7 +7,11 @@ millimetres, the kind of scan the rest of hortishape works on:
 1. **The level** (:func:`intensity_levels`) lies on the boundary between air
    and the outermost tissue. A histogram of the voxel values, Otsu's
    threshold between product and background, and the peak of the histogram
-   on either side of it give the background and the product intensity. Rays
+   on either side of it give the background and the product intensity (a
+   constant filling part of the volume, a CT's outside of its reconstructed
+   circle, is left out: the air around the product is the background; the
+   bins follow the values' own step, so the same values stored as floats or
+   multiplied up give the same level). Rays
    along the volume's finest axes, entering the product from outside where
    they cross its surface nearly square, then see which tissue comes first.
    When it is the product's main tissue (CT of most fruit) the level is
@@ -207,6 +211,20 @@ OUTER_STEP_TOP = 0.1
 #: the smallest value (:func:`_magnitude_zero`).
 MAGNITUDE_NEAR = 0.1
 MAGNITUDE_TAIL = 3.0
+#: A constant filling part of the volume (a CT's outside of the reconstructed circle: DICOM's
+#: pixel padding value, -2000 or -3024 HU): the histogram's lowest value when it holds at least
+#: ``PADDING_MIN_SHARE`` of the voxels, more than ``PADDING_SPIKE`` times any of the next
+#: ``PADDING_NEXT`` values (no noise: not the scanner's air), and the rest of the background
+#: (below Otsu's threshold without it) holds at least ``PADDING_REST`` times as many, in a peak at
+#: least ``PADDING_GAP`` of the way from the constant to that threshold. It is left out of the
+#: histogram: the air around the product is the background. (An air that is all one value, as in a
+#: volume whose air was set to 0 or a noiseless one, has only the edge's partial volumes beside
+#: it, most of them next to that value.)
+PADDING_MIN_SHARE = 0.01
+PADDING_SPIKE = 20.0
+PADDING_NEXT = 3
+PADDING_REST = 0.1
+PADDING_GAP = 0.1
 #: The fitted level is kept under this share of the way from the background
 #: to the outer tissue's peak.
 OUTER_MAX_SHARE = 0.75
@@ -275,6 +293,10 @@ class IntensityLevels:
         percentile of the rays' peaks), when it set ``segment_level``; NaN
         otherwise (and in an :class:`Extraction` whose product the level
         itself closed).
+    padding : float
+        A constant filling part of the volume (outside a CT's reconstructed
+        circle), left out of the histogram so that the background is the air
+        around the product; NaN when there is none.
     """
 
     background: float
@@ -285,6 +307,7 @@ class IntensityLevels:
     method: str = "peaks"
     segment_level: float = float("nan")
     slice_outer: float = float("nan")
+    padding: float = float("nan")
 
     @property
     def segment(self) -> float:
@@ -310,6 +333,9 @@ class IntensityLevels:
         if self.segment < self.level:
             text += (f"; inside from {self.segment:.4g}: across the slices the outermost tissue "
                      f"reaches only {self.slice_outer:.4g} (thinner than a slice)")
+        if math.isfinite(self.padding):
+            text += (f"; the value {self.padding:.4g} filling part of the volume (outside the reconstructed "
+                     "field of view?) left out")
         return text
 
 
@@ -372,6 +398,30 @@ def _histogram(data: np.ndarray, grid: tuple[float, float] | None) -> tuple[np.n
     return counts, 0.5 * (edges[:-1] + edges[1:]), float(edges[1] - edges[0])
 
 
+def _is_padding(counts: np.ndarray, centres: np.ndarray) -> bool:
+    """Whether the histogram's lowest bin is a constant filling part of the volume (see
+    ``PADDING_MIN_SHARE``), not the scanner's air."""
+    if len(counts) < PADDING_NEXT + 2:
+        return False
+    first, total = float(counts[0]), float(counts.sum())
+    if first < PADDING_MIN_SHARE * total or first <= PADDING_SPIKE * float(counts[1 : 1 + PADDING_NEXT].max()):
+        return False
+    from skimage.filters import threshold_otsu
+
+    rest = counts.copy()
+    rest[0] = 0
+    threshold = float(threshold_otsu(hist=(rest, centres)))
+    below = centres <= threshold
+    if float(rest[below].sum()) < PADDING_REST * first:
+        return False
+    from scipy.ndimage import gaussian_filter1d
+
+    # the rest's peak, smoothed as the histogram's peaks are (over 1 % of the span)
+    sigma = max(1.0, 0.01 * float(np.count_nonzero(below)))
+    air = float(centres[np.argmax(gaussian_filter1d(np.where(below, rest, 0).astype(np.float64), sigma))])
+    return air - float(centres[0]) >= PADDING_GAP * (threshold - float(centres[0]))
+
+
 def _peak(smooth: np.ndarray, centres: np.ndarray, width: float) -> float:
     """Position of the highest peak, refined by a parabola through three bins."""
     i = int(np.argmax(smooth))
@@ -423,6 +473,10 @@ def intensity_levels(volume, *, level: float | None = None, name: str = "volume"
 
 def _intensity_levels(vol: Volume, level: float | None, name: str, grid) -> IntensityLevels:
     counts, centres, width = _histogram(vol.data, grid)
+    padding = float("nan")
+    if _is_padding(counts, centres):
+        padding, counts = float(centres[0]), counts.copy()
+        counts[0] = 0
     data = vol.data
     vmin, vmax = float(data.min()), float(data.max())
     if vmin == vmax:
@@ -463,7 +517,7 @@ def _intensity_levels(vol: Volume, level: float | None, name: str, grid) -> Inte
         fg = _peak(gaussian_filter1d(np.where(below, 0.0, side), sigma, mode="constant"), centres, width)
     if level is not None:
         return IntensityLevels(background=bg, foreground=fg, threshold=threshold, level=float(level),
-                               method="given")
+                               method="given", padding=padding)
     below_bg = centres <= bg
     noise = (math.sqrt(np.average((centres[below_bg] - bg) ** 2, weights=counts[below_bg]))
              if counts[below_bg].sum() else 0.0)
@@ -489,7 +543,7 @@ def _intensity_levels(vol: Volume, level: float | None, name: str, grid) -> Inte
         if lower < level:
             segment, across = lower, peak
     return IntensityLevels(background=bg, foreground=fg, threshold=threshold, level=level, outer=outer,
-                           method=method, segment_level=segment, slice_outer=across)
+                           method=method, segment_level=segment, slice_outer=across, padding=padding)
 
 
 def _along_normal(data: np.ndarray, spacing: np.ndarray, place: np.ndarray, axis: int) -> np.ndarray:
