@@ -473,12 +473,12 @@ def intensity_levels(volume, *, level: float | None = None, name: str = "volume"
 
 def _intensity_levels(vol: Volume, level: float | None, name: str, grid) -> IntensityLevels:
     counts, centres, width = _histogram(vol.data, grid)
-    padding = float("nan")
-    if _is_padding(counts, centres):
-        padding, counts = float(centres[0]), counts.copy()
-        counts[0] = 0
     data = vol.data
     vmin, vmax = float(data.min()), float(data.max())
+    padding = float("nan")
+    if _is_padding(counts, centres):
+        padding, counts = vmin, counts.copy()
+        counts[0] = 0
     if vmin == vmax:
         raise VolumeError(f"{name}: every voxel has the same value ({vmin:g}); there is no object to extract")
     if level is not None:
