@@ -973,3 +973,14 @@ def test_an_air_all_one_value_is_the_background_not_padding():
     ext = extract_surface(ct(sphere_distance(48, (23.5, 23.5, 23.5), 16.0)))
     assert not np.isfinite(ext.levels.padding) and ext.levels.background == pytest.approx(0.0, abs=1.0)
     assert ext.volume == pytest.approx(4 / 3 * np.pi * 16.0**3, rel=0.005)
+
+
+def test_a_level_kept_off_the_integers_downwards_gives_no_note_about_slices():
+    # an integer volume's level within 0.05 below an integer is meshed a little lower; that is
+    # not the lower level of a peel thinner than a slice (before: "across the slices the outermost
+    # tissue reaches only nan ... decided at 500")
+    data = ct(sphere_distance(40, (19.5, 19.5, 19.5), 12.0), noise=5.0, dtype=np.int16)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ExtractionWarning)
+        ext = extract_surface(data, level=499.97)
+    assert ext.warnings == () and ext.levels.level == 499.97

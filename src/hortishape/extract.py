@@ -2107,7 +2107,7 @@ def _warnings(ext: Extraction, seg: "_Segmentation", attempts, vol: Volume) -> l
             f"the surface at the level had {' and '.join(why)}; gaps up to {seg.gap_mm:g} mm wide were closed "
             f"and {seg.n_filled:,} voxels ({seg.n_filled * ml:.1f} mL) inside filled"
         )
-    if seg.level < ext.levels.level:
+    if math.isfinite(ext.levels.slice_outer):  # the lower level decided what is inside
         notes.append(
             f"across the slices the outermost tissue reaches only {ext.levels.slice_outer:.4g} (thinner than a "
             f"slice) and broke up at the level {ext.levels.level:.4g}: what is inside was decided at "
