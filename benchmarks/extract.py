@@ -164,10 +164,11 @@ def _field_of_view(d, rng):
     data and where the volume's first voxel now lies (voxels)."""
     pad = int(0.35 * max(d.shape[:2]))
     air = d[:2, :2, :]
-    out = rng.normal(float(np.median(air)), float(np.std(air)), (d.shape[0] + 2 * pad, d.shape[1] + 2 * pad, d.shape[2]))
+    level = float(np.median(air))
+    out = rng.normal(level, float(np.std(air)), (d.shape[0] + 2 * pad, d.shape[1] + 2 * pad, d.shape[2]))
     out[pad : pad + d.shape[0], pad : pad + d.shape[1]] = d
     outside = _in_plane_radius(out) > min(out.shape[:2]) / 2.0
-    return np.where(outside, float(np.median(air)) - 1000.0, out), (pad, pad, 0)
+    return np.where(outside, level - 1000.0, out), (pad, pad, 0)
 
 
 def _gaussian(d, sigma):

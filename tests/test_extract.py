@@ -3,6 +3,7 @@ warnings, bad volumes, files."""
 
 import json
 import warnings
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -913,20 +914,16 @@ def test_the_same_values_stored_otherwise_give_the_same_surface():
     scale = 1.0 / 255.0
     stored = {
         "uint8": (vol, 1.0),
-        "float32": (Volume(vol.data.astype(np.float32) * np.float32(scale), spacing=vol.spacing,
-                           origin=vol.origin, direction=vol.direction), scale),
-        "uint16 x16": (Volume(vol.data.astype(np.uint16) * np.uint16(16), spacing=vol.spacing,
-                              origin=vol.origin, direction=vol.direction), 16.0),
+        "float32": (replace(vol, data=vol.data.astype(np.float32) * np.float32(scale)), scale),
+        "uint16 x16": (replace(vol, data=vol.data.astype(np.uint16) * np.uint16(16)), 16.0),
     }
     # with an offset or z-scored, a magnitude image's zero is its smallest value (before, the
     # Rician floor was dropped: the 1000 subtracted moved seed 14's apple 0 from -0.15 to -0.45 %)
     data = vol.data.astype(np.float32)
     mean, sd = float(data.mean()), float(data.std())
     shifted = {
-        "int16 -1000": (Volume(vol.data.astype(np.int16) - np.int16(1000), spacing=vol.spacing,
-                               origin=vol.origin, direction=vol.direction), 1.0, -1000.0),
-        "z-scored": (Volume((data - np.float32(mean)) / np.float32(sd), spacing=vol.spacing,
-                            origin=vol.origin, direction=vol.direction), 1.0 / sd, -mean / sd),
+        "int16 -1000": (replace(vol, data=vol.data.astype(np.int16) - np.int16(1000)), 1.0, -1000.0),
+        "z-scored": (replace(vol, data=(data - np.float32(mean)) / np.float32(sd)), 1.0 / sd, -mean / sd),
     }
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ExtractionWarning)

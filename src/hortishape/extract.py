@@ -351,17 +351,18 @@ def _sample(data: np.ndarray) -> np.ndarray:
     return np.asarray(data[::step, ::step, ::step]).ravel()
 
 
-def _value_grid(data: np.ndarray) -> tuple[float, float] | None:
+def _value_grid(sample: np.ndarray) -> tuple[float, float] | None:
     """The grid ``(origin, step)`` that the voxel values lie on, or None.
 
     An 8-bit MRI keeps its 256 values when it is stored as float (a NIfTI's
     ``scl_slope``, a DICOM's rescale slope) or multiplied up: the histogram
     is then counted in bins of that step, and the level kept off its values,
     so the surface does not depend on how the same values are stored.
-    Read from the histogram's subsample; None when the values are not
-    on a grid of at most 65,537 values (a continuous float volume).
+    Read from the histogram's subsample (:func:`_sample`); None when the
+    values are not on a grid of at most 65,537 values (a continuous float
+    volume).
     """
-    sample = _sample(data)
+    sample = np.asarray(sample).ravel()
     lo, hi = sample.min(), sample.max()
     if sample.dtype.kind in "biu" and int(hi) - int(lo) <= 65_536:
         present = np.flatnonzero(np.bincount((sample.astype(np.int64) - int(lo))))
@@ -384,10 +385,9 @@ def _value_grid(data: np.ndarray) -> tuple[float, float] | None:
     return origin, step
 
 
-def _histogram(data: np.ndarray, grid: tuple[float, float] | None) -> tuple[np.ndarray, np.ndarray, float]:
-    """Counts, bin centres and bin width of a subsample of ``data``: one bin per value of its
-    ``grid`` (:func:`_value_grid`), else 4096 bins."""
-    sample = _sample(data)
+def _histogram(sample: np.ndarray, grid: tuple[float, float] | None) -> tuple[np.ndarray, np.ndarray, float]:
+    """Counts, bin centres and bin width of the voxels' subsample (:func:`_sample`): one bin per
+    value of their ``grid`` (:func:`_value_grid`), else 4096 bins."""
     if grid is not None:
         origin, step = grid
         k = np.rint((sample.astype(np.float64) - origin) / step).astype(np.int64)
@@ -416,7 +416,7 @@ def _is_padding(counts: np.ndarray, centres: np.ndarray) -> bool:
         return False
     from scipy.ndimage import gaussian_filter1d
 
-    # the rest's peak, smoothed as the histogram's peaks are (over 1 % of the span)
+    # the rest's peak, smoothed over 1 % of the bins below the threshold
     sigma = max(1.0, 0.01 * float(np.count_nonzero(below)))
     air = float(centres[np.argmax(gaussian_filter1d(np.where(below, rest, 0).astype(np.float64), sigma))])
     return air - float(centres[0]) >= PADDING_GAP * (threshold - float(centres[0]))
@@ -468,11 +468,12 @@ def intensity_levels(volume, *, level: float | None = None, name: str = "volume"
     500.0
     """
     vol = _as_volume(volume)
-    return _intensity_levels(vol, level, name, _value_grid(vol.data))
+    sample = _sample(vol.data)
+    return _intensity_levels(vol, level, name, sample, _value_grid(sample))
 
 
-def _intensity_levels(vol: Volume, level: float | None, name: str, grid) -> IntensityLevels:
-    counts, centres, width = _histogram(vol.data, grid)
+def _intensity_levels(vol: Volume, level: float | None, name: str, sample, grid) -> IntensityLevels:
+    counts, centres, width = _histogram(sample, grid)
     data = vol.data
     vmin, vmax = float(data.min()), float(data.max())
     padding = float("nan")
@@ -595,6 +596,8 @@ def _outer_intensity(vol: Volume, background: float, foreground: float, noise: f
         return float("nan"), float("nan"), []
     data = vol.data
     detect = _detect_level(background, foreground, noise)
+    # rises this close are equal: a float's rounding must not tell them apart, nor bend a straight run
+    tie = 1e-5 * (foreground - background)
     maxima, edges, rays = [], [], []
     for axis in np.argsort(vol.spacing, kind="stable")[:2]:
         n = data.shape[axis]
@@ -627,15 +630,14 @@ def _outer_intensity(vol: Volume, background: float, foreground: float, noise: f
             at = np.clip(first[:, None] + np.arange(-1, window)[None, :], 1, n - 2)
             rise = np.take_along_axis(r, at + 1, axis=1) - np.take_along_axis(r, at - 1, axis=1)
             ray = np.arange(len(r))
-            # the first of equal rises, also where a float's rounding tells them apart
-            j = (rise >= rise.max(axis=1, keepdims=True) - 1e-5 * (foreground - background)).argmax(axis=1)
+            j = (rise >= rise.max(axis=1, keepdims=True) - tie).argmax(axis=1)  # the first of equal rises
             i = at[ray, j]
             # between voxels: the top of a parabola through the rises about the steepest
             g0, g1, g2 = (rise[ray, np.clip(j + d, 0, rise.shape[1] - 1)] for d in (-1, 0, 1))
             curve = g0 - 2.0 * g1 + g2
-            # no peak where the rises run straight (a float's rounding must not make one)
-            bent = curve < -1e-5 * (foreground - background)
-            shift = np.clip(np.divide(0.5 * (g0 - g2), curve, out=np.zeros_like(curve), where=bent), -0.5, 0.5)
+            # no peak where the rises run straight
+            shift = np.clip(np.divide(0.5 * (g0 - g2), curve, out=np.zeros_like(curve), where=curve < -tie),
+                            -0.5, 0.5)
             # within the two voxels either side: across a step sharper than a voxel the line
             # through the steepest point runs far beyond them (below the background)
             a, b = r[ray, i - 1], r[ray, i + 1]
@@ -2014,8 +2016,10 @@ def extract_surface(
 
     vol = _as_volume(volume)
     _check_options(smoothing, target_vertices, support_radius)
-    grid = _value_grid(vol.data)
-    levels = _intensity_levels(vol, level, name, grid)
+    sample = _sample(vol.data)
+    grid = _value_grid(sample)
+    levels = _intensity_levels(vol, level, name, sample, grid)
+    del sample
     values = (0.0, 1.0) if vol.data.dtype.kind in "biu" else grid
     iso, seg_iso = _off_grid(levels.level, values), _off_grid(levels.segment, values)
     inside_value, outside_value = _fill_values(levels)
