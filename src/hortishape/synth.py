@@ -714,10 +714,25 @@ def _fit_size(body_points, taper, half_height, lean, target, sagitta, *, width_f
     return scale, curvature
 
 
+#: Products whose two equal-variance axes of the dimensions come in the other order (see
+#: :func:`_sample_dimensions`).
+_SWAPPED_SHAPE_AXES = frozenset({"pepper"})
+
+
 def _sample_dimensions(spec: ProductSpec, rng: np.random.Generator) -> np.ndarray:
+    # Correlated normal dimensions, z = L e with L L^T = (1 - rho) I + rho 11^T. That matrix has a
+    # repeated eigenvalue: numpy's multivariate_normal took L from an SVD, whose basis of the
+    # repeated eigenspace is whatever LAPACK's kernel for the CPU returns (another on an AMD EPYC
+    # than on an AVX-512 Xeon), so the same seed gave other fruit on another CPU. The basis is
+    # written out instead: the common size (1, 1, 1) and two shape axes, in the order (and with
+    # the signs) that the populations hortishape was tuned and measured on were drawn with.
     rho = spec.correlation
-    cov = np.full((3, 3), rho) + (1 - rho) * np.eye(3)
-    z = rng.multivariate_normal(np.zeros(3), cov)
+    common = -np.ones(3) / math.sqrt(3.0)
+    across = np.array([0.0, -1.0, 1.0]) / math.sqrt(2.0)
+    along = np.array([2.0, -1.0, -1.0]) / math.sqrt(6.0)
+    shape_axes = [along, across] if spec.name in _SWAPPED_SHAPE_AXES else [across, along]
+    factor = np.column_stack([common, *shape_axes]) * np.sqrt([1.0 + 2.0 * rho, 1.0 - rho, 1.0 - rho])
+    z = factor @ rng.standard_normal(3)
     z = np.clip(z, -2.5, 2.5)  # no freaks: real populations are graded
     return np.asarray(spec.dimensions_mm) + z * np.asarray(spec.dimensions_sd_mm)
 
