@@ -890,11 +890,22 @@ def test_an_integer_volume_is_meshed_at_the_level_itself():
     ramp = np.minimum(i, n - 1 - i)
     d = np.minimum(np.minimum(ramp[:, None, None], ramp[None, :, None]), ramp[None, None, :])
     data = (10 * d).astype(np.uint8)
-    ext = extract_surface(data, level=30.3, smoothing=0)
-    v = ext.mesh.vertices
-    face = (np.abs(v[:, 1] - 11.5) < 4) & (np.abs(v[:, 2] - 11.5) < 4) & (v[:, 0] < 11.5)
-    assert face.sum() > 10
-    np.testing.assert_allclose(v[face, 0], 3.03, atol=1e-6)
+    data[0, 0, 0] = 1  # the values on the integers, not only on the tens (below)
+
+    def face_at(data, level):
+        v = extract_surface(data, level=level, smoothing=0).mesh.vertices
+        face = (np.abs(v[:, 1] - 11.5) < 4) & (np.abs(v[:, 2] - 11.5) < 4) & (v[:, 0] < 11.5)
+        assert face.sum() > 10
+        return v[face, 0]
+
+    np.testing.assert_allclose(face_at(data, 30.3), 3.03, atol=1e-6)
+    # the same values stored as float: the same surface
+    np.testing.assert_array_equal(face_at(data.astype(np.float64), 30.3), face_at(data, 30.3))
+    # values on the tens only: the level is kept 0.05 of their step (0.5) off them, however stored
+    tens = (10 * d).astype(np.uint8)
+    for stored in (tens, tens.astype(np.float32), tens.astype(np.int32) * 7):
+        step = 10.0 * (7 if stored.dtype == np.int32 else 1)
+        np.testing.assert_allclose(face_at(stored, 3.03 * step), 3.05, atol=1e-6)
     integers = (0.0, 1.0)
     assert extract._off_grid(30.0, integers) == pytest.approx(30.0 + extract.ISO_OFF_INTEGER)
     assert extract._off_grid(30.999, integers) == pytest.approx(31.0 - extract.ISO_OFF_INTEGER)

@@ -1374,8 +1374,8 @@ def _surface_genus(n_vertices: int, n_faces: int) -> int:
 
 def _off_grid(level: float, grid: tuple[float, float] | None) -> float:
     """``level`` kept at least ``ISO_OFF_INTEGER`` of a step from the values the voxels can take,
-    ``grid = (origin, step)``: the integers in an integer volume, the grid of a float volume's
-    values (:func:`_value_grid`). Voxels equal to the level would put vertices on them
+    ``grid = (origin, step)``: the grid of the volume's values (:func:`_value_grid`), whether
+    stored as integers or as floats. Voxels equal to the level would put vertices on them
     (degenerate faces). The voxels above it stay the same, and the
     surface keeps the level's place between two values: in an 8-bit MRI volume, whose edge
     rises some 20 values, half a value moves the surface by a share of a pixel that matters
@@ -1959,10 +1959,11 @@ def extract_surface(
     level : float, optional
         Iso level in the volume's intensity units; voxels above it are
         inside. Default: on the boundary between the background and the
-        outermost tissue (:func:`intensity_levels`). For integer voxels the
-        surface is meshed at the level kept ``ISO_OFF_INTEGER`` from an
-        integer (for float voxels that take few values, that share of the
-        step between them), so that no vertex falls on a voxel.
+        outermost tissue (:func:`intensity_levels`). Where the voxels take
+        values on a grid (the integers, or 8-bit values stored as float or
+        multiplied up), the surface is meshed at the level kept
+        ``ISO_OFF_INTEGER`` of a step from them, so that no vertex falls on a
+        voxel and the same values give the same surface however stored.
     smoothing : int, default: 10
         Iterations of :func:`taubin_smooth` (0: none). Removes the scanner
         noise from the surface without shrinking it.
@@ -2020,7 +2021,9 @@ def extract_surface(
     grid = _value_grid(sample)
     levels = _intensity_levels(vol, level, name, sample, grid)
     del sample
-    values = (0.0, 1.0) if vol.data.dtype.kind in "biu" else grid
+    # the grid the values lie on, however they are stored (the integers where an integer
+    # volume's values span too many to count)
+    values = grid if grid is not None or vol.data.dtype.kind not in "biu" else (0.0, 1.0)
     iso, seg_iso = _off_grid(levels.level, values), _off_grid(levels.segment, values)
     inside_value, outside_value = _fill_values(levels)
 
