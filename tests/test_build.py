@@ -110,10 +110,16 @@ def test_wrong_units_and_reference_choice(scans, tmp_path):
     checks = check_scans([*paths, metres])
     assert [c.ok for c in checks] == [True, True, True, True, False]
     assert "metres" in checks[-1].error and "metres.ply" in checks[-1].error
+    # of four, the smaller of the two in the middle, whatever the rounding of their sizes: their
+    # distances to the median (the mean of the two) were equal, and a 1e-9 mm jitter of the
+    # scans chose the other one (another build, another model)
     sizes = [c.size for c in checks[:4]]
-    median = np.median(sizes)
-    chosen = choose_reference(checks)
-    assert abs(sizes[[str(p) for p in paths].index(chosen)] - median) == min(abs(s - median) for s in sizes)
+    lower_middle = str(paths[int(np.argsort(sizes)[1])])
+    assert choose_reference(checks) == lower_middle
+    for nudge in (1 + 1e-15, 1 - 1e-15):
+        for k in range(4):
+            nudged = [replace(c, size=c.size * nudge) if i == k else c for i, c in enumerate(checks)]
+            assert choose_reference(nudged) == lower_middle
 
 
 def test_a_scan_with_holes_is_checked_closed_and_not_chosen_as_reference(scans, tmp_path):

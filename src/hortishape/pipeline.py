@@ -605,18 +605,23 @@ def check_scans(paths: Sequence, *, max_size_ratio: float = 5.0, scale: float = 
 
 
 def choose_reference(checks: Sequence[ScanCheck]) -> str:
-    """The default reference: the usable scan whose size is nearest the median, a closed one if any.
+    """The default reference: the usable scan of median size, a closed one if any.
 
     The paper picks a random instance; a typical-sized one deforms least on
-    average, which keeps correspondences more even across the population. A
-    scan with holes would bring its patches, guessed surface, into every
-    registration; among scans that all have holes, the one with the least.
+    average, which keeps correspondences more even across the population. Of
+    an even number of scans, the smaller of the two in the middle: the two
+    are equally far from the mean of their sizes, and the rounding of the
+    sizes (another CPU sums the volumes in another order) would pick one.
+    A scan with holes would bring its patches, guessed surface, into every
+    registration: the closed scan nearest that size is taken, or where all
+    have holes, the nearest of those with the least.
     """
     ok = [c for c in checks if c.ok]
     if not ok:
         raise HortishapeError("no usable scan to choose a reference from")
-    median = float(np.median([c.size for c in ok]))
-    return min(ok, key=lambda c: (c.hole_share, abs(c.size - median), c.path)).path
+    median = sorted(c.size for c in ok)[(len(ok) - 1) // 2]
+    least = min(c.hole_share for c in ok)
+    return min((c for c in ok if c.hole_share == least), key=lambda c: (abs(c.size - median), c.path)).path
 
 
 @dataclass(frozen=True)
