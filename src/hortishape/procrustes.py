@@ -149,7 +149,9 @@ def generalized_procrustes(
         raise ValueError(f"max_iter must be a positive integer, got {max_iter!r}")
     w = as_weights(weights, n)
     first = x[0]
-    if _rms_size(first, w) == 0:
+    # the points themselves, not their spread: a centroid of equal points can come out a last
+    # digit off them (BLAS sums in an order of its CPU's), and the spread not 0
+    if np.ptp(first[w > 0], axis=0).max() == 0:
         raise MeshError("shapes[0] has all its (weighted) points at one place: its pose is undefined")
 
     reference = first
