@@ -153,6 +153,7 @@ def test_fit_scan_describes_a_model_instance(built, scans):
     assert fit.mahalanobis < 3.0
 
 
+@pytest.mark.slow
 def test_cli_build_sample_modes_fit(built, scans, tmp_path, capsys):
     out = tmp_path / "m"
     assert main(["build", str(scans), "--out", str(out), "--points", "2000", "--iterations", "12",
@@ -177,6 +178,7 @@ def test_cli_build_of_a_missing_folder_is_one_line(tmp_path, capsys):
     assert "not a folder" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_cli_build_with_landmarks(scans, tmp_path, capsys):
     # the ground truth beside the scans names stalk_tip and bottom on each
     out = tmp_path / "m"

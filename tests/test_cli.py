@@ -88,6 +88,7 @@ def test_unwritable_output_is_one_clear_line(tmp_path):
     assert "Traceback" not in result.stderr
 
 
+@pytest.mark.slow
 def test_register_command(tmp_path, capsys):
     scans = tmp_path / "scans"
     assert main(["synth", "pear", "2", str(scans), "--seed", "2", "--vertices", "10000", "--jobs", "1"]) == 0

@@ -103,6 +103,7 @@ def _kill_own_group_if_busy(dask_worker):
     return False
 
 
+@pytest.mark.slow
 def test_run_jobs_on_the_cluster(cluster):
     address, _ = cluster
     seen = []
@@ -179,6 +180,7 @@ def test_the_cache_serves_a_second_build_and_only_the_same_settings(scans, local
     assert not any(r.resumed for r in other.first_pass)
 
 
+@pytest.mark.slow
 def test_an_unreachable_scheduler_is_one_line(scans, tmp_path, capsys, monkeypatch):
     from hortishape import _batch
 

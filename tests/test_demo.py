@@ -2,12 +2,15 @@
 
 import json
 
+import pytest
+
 from hortishape.cad import read_cad, surface_deviation
 from hortishape.demo import run_demo
 from hortishape.io import read_mesh
 from hortishape.model import ShapeModel
 
 
+@pytest.mark.slow
 def test_small_demo_writes_everything_it_prints(tmp_path):
     r = run_demo(tmp_path / "demo", n=4, n_points=1000, n_jobs=1, seed=2)
     assert sorted(p.name for p in r.scans.glob("*.ply")) == [f"apple_{i:03d}.ply" for i in range(4)]

@@ -253,6 +253,7 @@ def test_cli_evaluate(built, tmp_path, capsys):
     assert "at most 3" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_instances_of_uncertain_orientation_are_named_and_pictured(built, tmp_path):
     import shutil
 

@@ -426,6 +426,7 @@ def test_cli_extract(volumes, tmp_path, capsys):
     assert "resumed" in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_build_from_a_folder_of_volumes(volumes, tmp_path):
     from hortishape.pipeline import build_model, find_scans
     from hortishape.registration import RegistrationConfig
@@ -590,6 +591,7 @@ def test_ct_like_volumes_keep_the_histogram_level_and_close_no_gaps():
     assert ext.levels.level == pytest.approx(0.5 * (ext.levels.background + ext.levels.foreground))
 
 
+@pytest.mark.slow
 def test_synthetic_mri_volume_matches_its_true_surface():
     inst = synth.make_instance("pepper", random_state=5, volume=True, pose="random")
     vol = inst.mri_volume
@@ -813,6 +815,7 @@ def test_a_dim_skin_too_thin_to_fill_the_window_sets_the_level(peel, value):
     assert ext.volume == pytest.approx(4 / 3 * np.pi * 20.0**3, rel=0.005)
 
 
+@pytest.mark.slow
 def test_strong_noise_leaves_one_surface():
     # an MRI-like apple with Rician noise twice the volumes' (the artefact benchmark's seed 14,
     # apple 1): one closed surface (while a lower level was also tried after closing gaps wider
@@ -914,6 +917,7 @@ def test_an_integer_volume_is_meshed_at_the_level_itself():
     assert extract._off_grid(30.0, None) == 30.0
 
 
+@pytest.mark.slow
 def test_the_same_values_stored_otherwise_give_the_same_surface():
     # an 8-bit MRI stored as float (a NIfTI's scl_slope, a DICOM's rescale slope) or multiplied
     # up: the same surface. Before, a float volume's histogram had 4096 bins over its 256 values

@@ -132,6 +132,7 @@ def test_orientation_rank_starts_from_the_runner_up(scans, template, tmp_path):
     assert r1["summary"]["orientation_index"] == order[1]
 
 
+@pytest.mark.slow
 def test_orientation_consensus_keeps_the_registration_that_agrees_with_the_others(scans, template, tmp_path):
     # five registrations of apples, one of them deliberately started upside
     # down (an outlier): the check registers that one again from the search's
@@ -233,6 +234,7 @@ def test_orientation_consensus_needs_a_clear_gain_to_overrule_the_first_registra
     assert kept[tmp_path / "s4.ply"] == layout.first_pass_runner_up / "s4.ply"
 
 
+@pytest.mark.slow
 def test_cli_register_with_landmarks(scans, tmp_path, capsys):
     from hortishape.cli import main
 

@@ -252,6 +252,7 @@ def test_inputs_not_mutated_and_register_many(template, dense):
     assert not regs[0].vertices.flags.writeable
 
 
+@pytest.mark.slow
 def test_remeshed_reference_keeps_map(dense):
     r = remesh(dense, 1500)
     t = prepare_reference(dense, 1500, coarse_vertices=500, search_vertices=200)
@@ -259,6 +260,7 @@ def test_remeshed_reference_keeps_map(dense):
     assert t.source_face_index is not None and len(t.source_face_index) == 1500
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("product", ["apple", "pepper"])
 def test_synthetic_fruit_in_random_pose_lands_stalk_tip(product):
     # small meshes keep the test fast; the reference and the target are
@@ -364,6 +366,7 @@ def test_lobes_measures_the_angular_harmonics_about_the_axis():
     assert abs(_lobes(lobed @ r.T, r @ z) - _lobes(lobed, z)) < 0.002
 
 
+@pytest.mark.slow
 def test_round_reference_warp_finds_the_twist_about_the_stalk_axis():
     # An apple's turn about its stalk axis shows only in a cheek a few per
     # cent fuller on one side. Started 4 degrees off the true pose about that
@@ -417,6 +420,7 @@ def test_auto_warp_is_quadratic_for_elongated_references_and_a_taper_for_round_o
         "none", "affine", "taper", "quadratic"]
 
 
+@pytest.mark.slow
 def test_zucchini_correspondence_does_not_slide_along_a_shorter_target():
     # A 331 mm reference onto a 243 mm zucchini (both bent, different clubs
     # and necks): the true correspondence keeps each point's place along the
@@ -455,6 +459,7 @@ def test_folded_triangles_are_repaired(template):
     np.testing.assert_allclose(fixed, placed, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_local_tail_ends_where_iterating_the_whole_surface_ends():
     # a noisy banana whose stalk tip still reaches for the scan's when the
     # rest has stopped: only the tip and its neighbours are iterated on, and
@@ -496,6 +501,7 @@ def test_a_local_iteration_moves_only_its_vertices(template, dense):
     assert (np.linalg.norm(state.positions[active] - fine.vertices[active], axis=1) > 0).all()
 
 
+@pytest.mark.slow
 def test_distance_floor_lets_an_overshooting_stalk_tip_land():
     # The reference banana's stalk ends beyond the target's. Once the rest of
     # the surface sits on the scan, 20 x d_t is a few hundredths of a
@@ -515,6 +521,7 @@ def test_distance_floor_lets_an_overshooting_stalk_tip_land():
     assert tip_error(0.0) > 5.0
 
 
+@pytest.mark.slow
 def test_orientation_search_is_not_fooled_by_width_and_depth():
     # Width and depth vary independently of a fruit's anatomy. A rigid search
     # and refinement can turn the reference to lay its wider side along the
@@ -533,6 +540,7 @@ def test_orientation_search_is_not_fooled_by_width_and_depth():
     assert error(True) < 10.0
 
 
+@pytest.mark.slow
 def test_orientation_search_is_not_fooled_by_a_taper():
     # This pepper's top is 12 % wider than its middle and its bottom 12 %
     # narrower; the reference's top is 7 % narrower and its bottom wider. A
@@ -641,6 +649,7 @@ def test_elastic_solve_matches_a_direct_solve(template, beta, coarse):
     assert np.abs(x - exact).max() < 1e-6 * np.abs(exact).max()
 
 
+@pytest.mark.slow
 def test_orientation_search_does_not_depend_on_the_reference_resolution():
     # The search's stiffness is set for a 30,000-vertex reference whatever the
     # reference's own count. When it was defined at the reference's own
@@ -671,6 +680,7 @@ def _rotation_error(transform, ref, tgt) -> float:
     return rotation_angle(transform[:3, :3] @ (tgt.pose[:3, :3] @ ref.pose[:3, :3].T).T)
 
 
+@pytest.mark.slow
 def test_up_hint_excludes_upside_down_orientations_and_is_checked():
     # The pepper pair that came out upside down without the search's taper
     # (see above), both scanned upright (leaning up to 8 degrees): with the
@@ -695,6 +705,7 @@ def test_up_hint_excludes_upside_down_orientations_and_is_checked():
             RegistrationConfig(up=bad)
 
 
+@pytest.mark.slow
 def test_orientation_confidence_is_the_margin_over_a_distinct_orientation():
     from hortishape.registration.config import ALTERNATIVE_TURN
 
@@ -715,6 +726,7 @@ def test_orientation_confidence_is_the_margin_over_a_distinct_orientation():
     assert np.isnan(placed.orientation_confidence)
 
 
+@pytest.mark.slow
 def test_landmarks_fix_the_orientation_and_are_pulled_together():
     # The pepper pair that came out upside down without the search's taper,
     # the target in a random pose. Two named points (stalk tip, calyx) fix
@@ -782,6 +794,7 @@ def _axis_error(s, b, s_true, b_true):
 
 
 # the orange's stalk scar holds 0.43 % of its surface, less than `end_cavity`: both ends are searched
+@pytest.mark.slow
 @pytest.mark.parametrize("a, b, ends", [("017_orange", "018_plum", "searched"), ("018_plum", "017_orange", "searched"),
                                         ("016_pear", "017_orange", "searched"),
                                         ("017_orange", "012_strawberry", "searched")])
@@ -793,6 +806,7 @@ def test_real_fruit_poles_land_on_poles(ycb, a, b, ends):
     assert _axis_error(s, bl, s_true, b_true) < 25.0
 
 
+@pytest.mark.slow
 def test_real_fruit_with_a_stalk_cavity_never_come_out_upside_down(ycb):
     """Every ordered pair of the real scans whose cavity end is told apart (peach, plum, orange, pear)."""
     told = ["015_peach", "018_plum", "017_orange", "016_pear"]
@@ -803,6 +817,7 @@ def test_real_fruit_with_a_stalk_cavity_never_come_out_upside_down(ycb):
                 assert _axis_error(s, bl, s_true, b_true) < 60.0, (a, b)
 
 
+@pytest.mark.slow
 def test_real_fruit_onto_a_turned_copy_of_itself(ycb):
     for seed, name in enumerate(["013_apple", "014_lemon", "011_banana", "012_strawberry"]):
         _, s, bl, s_true, b_true = _carried_poles(ycb, name, name, seed=seed, n_points=4000)
@@ -858,6 +873,7 @@ def test_a_dent_of_a_few_square_millimetres_does_not_decide_the_ends():
     assert ends == "searched" and len(both_ways) == 2 * len(one_way)
 
 
+@pytest.mark.slow
 def test_a_scan_with_holes_registers_as_the_closed_scan_does():
     # the same synthetic apple closed and with 10 % of its surface cut away in holes (cut last, so the
     # rest of the scan is the same): the patches that close the holes guide the orientation search and

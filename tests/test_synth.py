@@ -15,6 +15,7 @@ def coarse_instances():
     return {p: synth.make_instance(p, random_state=7, pose="random", n_vertices=20000) for p in PRODUCTS}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("product", ["apple", "pepper", "zucchini"])
 def test_population_has_table1_dimensions(product):
     # 30 instances, as in the paper; the dimensions are of the body, stalk excluded.
@@ -42,12 +43,14 @@ def test_instance_is_one_closed_outward_surface(coarse_instances, product):
     assert set(np.unique(inst.parts)) <= set(range(len(inst.part_names)))
 
 
+@pytest.mark.slow
 def test_default_resolution_is_a_ct_scan():
     inst = synth.make_instance("apple", random_state=3)
     assert 50_000 <= inst.mesh.n_vertices <= 150_000
     assert inst.voxel_size < 0.8
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("product", PRODUCTS)
 def test_deterministic_for_a_seed(product):
     a = synth.make_instance(product, random_state=42, pose="random", n_vertices=5000)
@@ -97,6 +100,7 @@ def test_true_correspondence_is_exact_between_poses_of_one_shape():
     assert np.percentile(err, 99) < 0.05
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("product", PRODUCTS)
 def test_landmarks_correspond_across_instances(product):
     # the same canonical point is the same anatomical place on another instance
@@ -182,6 +186,7 @@ def test_mri_volume_has_a_peel_over_a_dark_rind_and_an_open_core(tmp_path):
     assert (tmp_path / "volumes" / "apple.mha").is_file() and (tmp_path / synth.MRI_FOLDER / "apple.mha").is_file()
 
 
+@pytest.mark.slow
 def test_files_round_trip(tmp_path):
     from hortishape.io import read_mesh
 
@@ -217,6 +222,7 @@ def test_bad_population_size(tmp_path):
         synth.write_population("apple", 0, tmp_path)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("product", PRODUCTS)
 def test_every_seed_and_vertex_count_gives_one_closed_surface(product):
     # A thin stalk at a coarse voxel size can come apart in marching cubes;
@@ -257,6 +263,7 @@ def test_every_family_is_one_closed_surface_with_its_landmarks_on_it(product):
             assert d < 2.0 * inst.voxel_size, (family, name, d)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [12, 13, 14])
 def test_families_have_what_their_names_say(seed):
     def make(family):
