@@ -182,6 +182,9 @@ def test_fruit_axis_on_the_real_scans(ycb):
     for name, (mesh, stalk, blossom) in ycb.items():
         ax = fruit_axis(mesh.vertices, mesh.faces)
         err = _angle(ax.direction, stalk - blossom)
+        # 30 degrees is where an axis counts as right. The peach comes out at 28.9 (its blossom
+        # mark is in doubt; the same to 0.01 degree with its vertices moved by 1e-6 mm), the
+        # others within 10
         assert min(err, 180.0 - err) < 30.0, name
         if ax.contrast >= 0.5:
             told += 1

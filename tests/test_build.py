@@ -64,9 +64,11 @@ def test_writes_corresponded_and_aligned_surfaces(built, scans):
         faces = reg.faces if faces is None else faces
         np.testing.assert_array_equal(reg.faces, faces)  # same faces for all
         np.testing.assert_array_equal(aligned.faces, faces)
-        # registered surfaces are in each scan's own coordinates
+        # registered surfaces are in each scan's own coordinates: their centroids within 1.8 mm of
+        # the scan's (its vertices are spread otherwise), where the scans' own lie 16-50 mm apart
+        # and from the origin
         scan = read_mesh(scans / f"{name}.ply")
-        assert np.linalg.norm(reg.vertices.mean(0) - scan.vertices.mean(0)) < 2.0
+        assert np.linalg.norm(reg.vertices.mean(0) - scan.vertices.mean(0)) < 5.0
 
 
 def test_model_file_holds_the_model(built):

@@ -274,7 +274,8 @@ def test_families_have_what_their_names_say(seed):
     assert (standard.parts == stalk).sum() > 20 and (stalkless.parts == stalk).sum() == 0
     # the stalkless apple's stalk mark is its cavity floor, below the shoulders
     assert stalkless.landmarks_canonical["stalk_tip"][2] < stalkless.canonical[:, 2].max() - 3.0
-    # a sunk stalk ends below the shoulders around its cavity
+    # a sunk stalk ends below the shoulders around its cavity (for this seed 0.65 mm below: the
+    # generator's geometry, the same on every machine)
     body = sunk.parts == sunk.part_names.index("body")
     assert sunk.landmarks_canonical["stalk_tip"][2] < sunk.canonical[body, 2].max()
     # a tilted stalk leans more than 20 degrees from the axis
