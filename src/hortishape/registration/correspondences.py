@@ -165,12 +165,16 @@ class RayScene:
         itself (:func:`_crossing`).
         """
         shift = NUDGE * float(np.ptp(self.vertices, axis=0).max()) * _NUDGE_DIRECTION
-        face, _, _ = self._fallback.intersect_ray_first(
+        face, _, uv = self._fallback.intersect_ray_first(
             self.vertices, self.faces, np.ascontiguousarray(o + shift), np.ascontiguousarray(d))
         face = face.astype(np.int64)
         bary = np.zeros((len(o), 3))
         hit = face >= 0
-        bary[hit] = _crossing(self.vertices[self.faces[face[hit]]], o[hit], d[hit])
+        crossing = _crossing(self.vertices[self.faces[face[hit]]], o[hit], d[hit])
+        # a ray in the face's plane crosses it nowhere: libigl's own point on it
+        along = ~np.isfinite(crossing).all(axis=1)
+        crossing[along] = np.column_stack([1.0 - uv[hit, 0] - uv[hit, 1], uv[hit, 0], uv[hit, 1]])[along]
+        bary[hit] = crossing
         return face, bary
 
     def first_hit(self, origins, directions, max_distance=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -238,13 +242,14 @@ def _crossing(triangles: np.ndarray, o: np.ndarray, d: np.ndarray) -> np.ndarray
     ``(k, 3, 3)``, clipped into the triangles: a ray through an edge or a vertex crosses there."""
     a, b, c = triangles[:, 0], triangles[:, 1], triangles[:, 2]
     n = np.cross(b - a, c - a)
-    t = np.einsum("kd,kd->k", a - o, n) / np.einsum("kd,kd->k", d, n)
-    p = o + t[:, None] * d
-    area = np.einsum("kd,kd->k", n, n)
-    u = np.einsum("kd,kd->k", np.cross(c - b, p - b), n) / area
-    v = np.einsum("kd,kd->k", np.cross(a - c, p - c), n) / area
-    bary = np.clip(np.column_stack([u, v, 1.0 - u - v]), 0.0, None)
-    return bary / bary.sum(axis=1, keepdims=True)
+    with np.errstate(divide="ignore", invalid="ignore"):  # a ray in the plane: NaN, see the caller
+        t = np.einsum("kd,kd->k", a - o, n) / np.einsum("kd,kd->k", d, n)
+        p = o + t[:, None] * d
+        area = np.einsum("kd,kd->k", n, n)
+        u = np.einsum("kd,kd->k", np.cross(c - b, p - b), n) / area
+        v = np.einsum("kd,kd->k", np.cross(a - c, p - c), n) / area
+        bary = np.clip(np.column_stack([u, v, 1.0 - u - v]), 0.0, None)
+        return bary / bary.sum(axis=1, keepdims=True)
 
 
 @dataclass(frozen=True, eq=False)
