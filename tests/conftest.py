@@ -2,14 +2,14 @@
 
 The perturbation check: with ``HORTISHAPE_PERTURB`` set to a comma-separated
 list of the perturbations below, the tests run on inputs changed at the level
-of rounding, and every assertion must still hold (``.ci/run`` runs the
-numerical tests so, together with other BLAS kernels and one thread set by
+of rounding, and every assertion must still hold (``.ci/run`` runs every
+test so, together with other BLAS kernels and one thread set by
 ``OPENBLAS_CORETYPE``, ``NPY_DISABLE_CPU_FEATURES`` and
-``OPENBLAS_NUM_THREADS``). A test that fails only so asserts a figure that
-another machine would not give.
+``OPENBLAS_NUM_THREADS``; docs/reproducibility.md). A test that fails only so
+asserts a figure that another machine would not give.
 
 - ``jitter``: every synthetic scan's vertices (``synth.make_instance``) and
-  the real scans' moved at random by up to ``JITTER_MM``;
+  the real scans' moved by up to ``JITTER_MM``, each as its position decides;
 - ``float32`` / ``float64``: every volume handed to ``extract_surface``
   stored as float32 / float64, where that keeps its values exactly;
 - ``no-embree``: ``embreex`` hidden, so libigl casts the rays (as on macOS and ARM), also in
@@ -22,6 +22,7 @@ import dataclasses
 import functools
 import json
 import os
+import re
 import sys
 from pathlib import Path
 
@@ -130,16 +131,12 @@ _NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?|[-+]?inf"
 
 
 def _number(text: str) -> float | None:
-    import re
-
     text = re.sub(r"^np\.(?:float|int)\d*\((.*)\)$", r"\1", text.strip())
     return float(text) if re.fullmatch(_NUMBER, text) else None
 
 
 def _margin(first_line: str) -> dict | None:
     """``{"op", "value", "bound", "margin"}`` of an assertion's first explained line, or None."""
-    import re
-
     line = first_line.removeprefix("assert ").strip()
     m = re.fullmatch(rf"(.+?) == ({_NUMBER}) ± ({_NUMBER})", line)
     if m and _number(m[1]) is not None:
@@ -160,8 +157,6 @@ def pytest_assertion_pass(item, lineno, orig, expl):
         return
     found = _margin(expl.splitlines()[0]) if expl else None
     if found is not None and found["op"] != "approx":
-        import re
-
         left = re.split(r" (?:<=|>=|<|>) ", orig, maxsplit=1)[0]
         if _number(left) is not None:  # the bound on the left: `5.0 < x`
             found.update(value=found["bound"], bound=found["value"],
