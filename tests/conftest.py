@@ -29,6 +29,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+# not a module to collect doctests from: where Python has a sitecustomize of its own (Debian's),
+# importing this one by that name would clash with it
+collect_ignore = ["perturbation"]
+
 PERTURBATIONS = {"jitter", "float32", "float64", "no-embree", "one-thread"}
 #: How far ``jitter`` moves a vertex along each axis, mm.
 JITTER_MM = 1e-9
