@@ -86,10 +86,14 @@ def run_jobs(
         return results
     n_jobs = max(1, min(n_jobs or os.cpu_count() or 1, len(jobs) or 1))
     if n_jobs == 1 or not jobs:
-        if initializer is not None and jobs:
-            initializer(*initargs)
-        for _ in wrap(finished((i, fn(job), 1) for i, job in enumerate(jobs))):
-            pass
+        from threadpoolctl import threadpool_limits
+
+        # on one BLAS thread, as a worker (``_start_worker``): the results do not depend on n_jobs
+        with threadpool_limits(limits=1):
+            if initializer is not None and jobs:
+                initializer(*initargs)
+            for _ in wrap(finished((i, fn(job), 1) for i, job in enumerate(jobs))):
+                pass
         return results
     with ProcessPoolExecutor(max_workers=n_jobs, initializer=_start_worker, initargs=(initializer, initargs)) as pool:
         futures = {pool.submit(fn, job): i for i, job in enumerate(jobs)}
