@@ -185,17 +185,12 @@ def _peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def run_class(product, pose, files, n_baseline, config=None):
-    """Worker: prepare the reference, register every target, measure (separate process)."""
-    warnings.simplefilter("ignore")
-    from hortishape.align import rotation_angle
-    from hortishape.registration import RegistrationConfig, prepare_reference, register
+def prepare(ref, product):
+    """The reference's template at the paper's size, its vertices' canonical points and where its landmarks lie."""
+    from hortishape.registration import prepare_reference
     from hortishape.surface import barycentric_interpolate, closest_points
 
-    ref = _load(files[0])
-    t0 = time.perf_counter()
     template = prepare_reference(ref["mesh"], PAPER_N[product])
-    t_prep = time.perf_counter() - t0
     canon = barycentric_interpolate(
         ref["canonical"], ref["mesh"].faces, template.source_face_index, template.source_barycentric
     )
@@ -203,18 +198,41 @@ def run_class(product, pose, files, n_baseline, config=None):
     for name in ("stalk", "bottom"):
         cp = closest_points(template.mesh, ref[name][None])
         lm_loc[name] = (cp.face_index, cp.barycentric)
+    return template, canon, lm_loc
+
+
+def measure_registration(reg, ref, tgt, prepared) -> dict:
+    """The figures of one registration (``_measure``'s, the axis, the rotation, iterations, confidence)."""
+    from hortishape.align import rotation_angle
+
+    template, canon, lm_loc = prepared
+    r_true = tgt["pose"][:3, :3] @ ref["pose"][:3, :3].T
+    ax = np.degrees(np.arccos(np.clip((reg.transform[:3, :3] @ ref["pose"][:3, 2]) @ tgt["pose"][:3, 2], -1, 1)))
+    ref_global = reg.placed  # after the warp: the surface the elastic displacement starts from
+    m = _measure(reg.vertices, reg.faces, ref_global, template, canon, lm_loc, tgt)
+    m.update(axis=float(ax), rot=rotation_angle(reg.transform[:3, :3] @ r_true.T), its=len(reg.log),
+             confidence=float(reg.orientation_confidence))
+    return m
+
+
+def run_class(product, pose, files, n_baseline, config=None):
+    """Worker: prepare the reference, register every target, measure (separate process)."""
+    warnings.simplefilter("ignore")
+    from hortishape.registration import RegistrationConfig, register
+
+    ref = _load(files[0])
+    t0 = time.perf_counter()
+    prepared = prepare(ref, product)
+    t_prep = time.perf_counter() - t0
+    template, canon, lm_loc = prepared
     rows, base, starts = [], [], []
     for k, fn in enumerate(files[1:]):
         tgt = _load(fn)
         t0 = time.perf_counter()
         reg = register(template, tgt["scan"], RegistrationConfig(**(config or {})))
         sec = time.perf_counter() - t0
-        r_true = tgt["pose"][:3, :3] @ ref["pose"][:3, :3].T
-        ax = np.degrees(np.arccos(np.clip((reg.transform[:3, :3] @ ref["pose"][:3, 2]) @ tgt["pose"][:3, 2], -1, 1)))
-        ref_global = reg.placed  # after the warp: the surface the elastic displacement starts from
-        m = _measure(reg.vertices, reg.faces, ref_global, template, canon, lm_loc, tgt)
-        m.update(sec=sec, axis=float(ax), rot=rotation_angle(reg.transform[:3, :3] @ r_true.T), its=len(reg.log),
-                 confidence=float(reg.orientation_confidence))
+        m = measure_registration(reg, ref, tgt, prepared)
+        m.update(sec=sec)
         rows.append(m)
         starts.append((tgt, reg.transform))
     # peak of this process so far: the reference preparation and our registrations

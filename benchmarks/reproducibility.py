@@ -71,10 +71,8 @@ def worker(cases: list[list[str]], out: str) -> None:
     if os.environ.get("HORTISHAPE_HIDE_EMBREEX"):
         sys.modules["embreex"] = None  # importing embreex now raises ImportError
     warnings.simplefilter("ignore")
-    from hortishape.align import rotation_angle
     from hortishape.mesh import Mesh
-    from hortishape.registration import RegistrationConfig, correspondences, prepare_reference, register
-    from hortishape.surface import barycentric_interpolate, closest_points
+    from hortishape.registration import RegistrationConfig, correspondences, register
 
     if os.environ.get("HORTISHAPE_RAY_THREADS"):
         correspondences.RAY_THREADS = int(os.environ["HORTISHAPE_RAY_THREADS"])
@@ -84,30 +82,15 @@ def worker(cases: list[list[str]], out: str) -> None:
     rng = np.random.default_rng(0)
     for files in cases:
         ref = bench._load(files[0])
-        product = Path(files[0]).name.split("_")[0]
-        template = prepare_reference(ref["mesh"], bench.PAPER_N[product])
-        canon = barycentric_interpolate(ref["canonical"], ref["mesh"].faces, template.source_face_index,
-                                        template.source_barycentric)
-        lm_loc = {}
-        for name in ("stalk", "bottom"):
-            cp = closest_points(template.mesh, ref[name][None])
-            lm_loc[name] = (cp.face_index, cp.barycentric)
+        prepared = bench.prepare(ref, Path(files[0]).name.split("_")[0])
         for fn in files[1:]:
             tgt = bench._load(fn)
             scan = tgt["scan"]
             if jitter:
                 scan = Mesh(scan.vertices + rng.uniform(-jitter, jitter, scan.vertices.shape), scan.faces)
-            t0 = time.perf_counter()
-            reg = register(template, scan, RegistrationConfig())
-            sec = time.perf_counter() - t0
-            r_true = tgt["pose"][:3, :3] @ ref["pose"][:3, :3].T
-            up = (reg.transform[:3, :3] @ ref["pose"][:3, 2]) @ tgt["pose"][:3, 2]
-            m = bench._measure(reg.vertices, reg.faces, reg.placed, template, canon, lm_loc, tgt)
-            m.update(axis=float(np.degrees(np.arccos(np.clip(up, -1, 1)))), sec=sec,
-                     rot=rotation_angle(reg.transform[:3, :3] @ r_true.T),
-                     confidence=float(reg.orientation_confidence), pair=Path(fn).stem)
+            reg = register(prepared[0], scan, RegistrationConfig())
             saved[Path(fn).stem] = reg.vertices
-            figures.append(m)
+            figures.append(bench.measure_registration(reg, ref, tgt, prepared))
     np.savez(out, figures=json.dumps(figures), **saved)
 
 
