@@ -435,7 +435,7 @@ def test_build_from_a_folder_of_volumes(volumes, tmp_path):
 
     write_mesh(volumes / "not_a_scan.txt.ply", Mesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]]))
     try:
-        paths, failed = find_scans(volumes, tmp_path, n_jobs=1)
+        paths, failed, _ = find_scans(volumes, tmp_path, n_jobs=1)
         assert [p.name for p in paths] == ["ball_0.ply", "ball_1.ply", "ball_2.ply", "not_a_scan.txt.ply"]
         assert failed == [] and (tmp_path / "surfaces" / "ball_0.png").is_file()
         result = build_model(volumes, tmp_path, n_points=600, config=RegistrationConfig(n_iterations=6),
@@ -446,7 +446,7 @@ def test_build_from_a_folder_of_volumes(volumes, tmp_path):
     assert [p.endswith("not_a_scan.txt.ply") for p, _ in result.skipped] == [True]  # an open triangle
     assert result.model_path.is_file()
     # the voxel size the error names as the fix is an option of build too
-    paths, _ = find_scans(volumes, tmp_path / "doubled", n_jobs=1, spacing=(1.6, 1.6, 1.6))
+    paths, _, _ = find_scans(volumes, tmp_path / "doubled", n_jobs=1, spacing=(1.6, 1.6, 1.6))
     assert np.ptp(read_mesh(paths[1]).vertices, axis=0).max() == pytest.approx(
         2 * np.ptp(read_mesh(tmp_path / "surfaces" / "ball_1.ply").vertices, axis=0).max(), rel=1e-6)
     args = build_parser().parse_args(["build", str(volumes), "--out", "x", "--spacing", "0.8", "0.8", "0.8"])

@@ -996,21 +996,26 @@ def test_nrrd_and_nifti_round_trips(tmp_path, ext):
     assert sorted(p.name for p in tmp_path.iterdir()) == [f"ours{ext}", f"theirs{ext}"]
 
 
-def test_multipage_tiff_needs_spacing_or_warns(tmp_path):
+def test_multipage_tiff_without_a_voxel_size_is_refused(tmp_path):
     sitk = pytest.importorskip("SimpleITK")
     vol = _asymmetric_volume(np.uint16)
-    sitk.WriteImage(_sitk_image(sitk, vol), str(tmp_path / "stack.tif"))
-    with pytest.warns(UserWarning, match="TIFF stores no reliable voxel spacing; assuming 1 mm"):
-        back = read_volume(tmp_path / "stack.tif")
-    np.testing.assert_array_equal(back.data, vol.data)
-    np.testing.assert_array_equal(back.spacing, [1, 1, 1])
-    np.testing.assert_array_equal(back.direction, np.eye(3))
+    sitk.WriteImage(_sitk_image(sitk, vol), str(tmp_path / "stack.tif"))  # no OME or ImageJ metadata
+    with pytest.raises(VolumeError, match=_starts_with_path(tmp_path / "stack.tif", "no voxel size: ")) as err:
+        read_volume(tmp_path / "stack.tif")
+    assert "--spacing SX SY SZ" in str(err.value) and "\n" not in str(err.value)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         back = read_volume(tmp_path / "stack.tif", spacing=(0.1, 0.1, 0.2))
+    np.testing.assert_array_equal(back.data, vol.data)
     np.testing.assert_array_equal(back.spacing, [0.1, 0.1, 0.2])
+    np.testing.assert_array_equal(back.direction, np.eye(3))
+    assert back.spacing_source.startswith("given")
+    # hortishape writes OME-TIFF, which keeps the voxel size (not the origin or direction)
     write_volume(tmp_path / "ours.tiff", vol)
-    np.testing.assert_array_equal(read_volume(tmp_path / "ours.tiff", spacing=1).data, vol.data)
+    ours = read_volume(tmp_path / "ours.tiff")
+    np.testing.assert_array_equal(ours.data, vol.data)
+    np.testing.assert_allclose(ours.spacing, vol.spacing, rtol=1e-12)
+    assert ours.spacing_source == "OME-TIFF PhysicalSizeX/Y/Z"
 
 
 def test_folder_of_tiff_slices_in_natural_order(tmp_path):

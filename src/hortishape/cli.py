@@ -280,16 +280,19 @@ def _add_extract(sub) -> None:
 
 
 def _run_extract(args) -> int:
-    from .extract import extract_files
+    from .extract import collect_volumes, extract_files
 
     if args.smoothing < 0:
         raise HortishapeError(f"--smoothing must be 0 or more iterations, got {args.smoothing}")
     start = time.perf_counter()
+    volumes, passed = collect_volumes(args.volumes, exclude=[args.out])
+    for path, reason in passed:
+        print(f"skipped {path}: {reason}")
     results = extract_files(
-        args.volumes, args.out, level=args.level, smoothing=args.smoothing,
+        volumes, args.out, level=args.level, smoothing=args.smoothing,
         target_vertices=args.target_vertices, remove_support=not args.keep_support,
         picture=not args.no_picture, n_jobs=args.jobs, strict=args.strict, spacing=args.spacing,
-        progress=_progress(len(args.volumes), "extract", "volume"),
+        progress=_progress(len(volumes), "extract", "volume"),
     )
     print(f"{'volume':<24}{'vertices':>10}{'mL':>9}{'level':>9}{'seconds':>9}  note")
     for r in results:
@@ -556,7 +559,7 @@ def _print_build(result) -> None:
     print("second pass (the first pass's mean registered to every scan: the model's correspondences):")
     _print_results(result.second_pass)
     for path, reason in result.skipped:
-        print(f"skipped {path}: {reason}")
+        print(f"skipped {reason if reason.startswith(str(path)) else f'{path}: {reason}'}")
     retried = [f"{name} ({f'pass {k}' if isinstance(k, int) else k}, {attempts} attempts)"
                for name, k, attempts in result.retried]
     if retried:
@@ -625,7 +628,7 @@ def _run_update(args) -> int:
     print(f"added to {args.model_dir} ({len(result.names) - len(added)} scans, kept as they were):")
     _print_results(result.second_pass)
     for path, reason in result.skipped:
-        print(f"skipped {path}: {reason}")
+        print(f"skipped {reason if reason.startswith(str(path)) else f'{path}: {reason}'}")
     import json
 
     moved = json.loads((Path(result.out_dir) / "summary.json").read_text(encoding="utf-8"))["update"]["mean_moved_rms_mm"]

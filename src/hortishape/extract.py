@@ -105,7 +105,7 @@ from ._batch import raise_failed, run_jobs
 from .errors import ExtractionWarning, HortishapeError, MeshError, VolumeError
 from ._files import Progress, atomic_path
 from ._memory import give_back_freed_memory
-from .io import Volume, read_volume, volume_formats, write_mesh
+from .io import Volume, VolumeSource, find_sources, read_volume, volume_formats, write_mesh
 from .mesh import Mesh
 from .units import PLAUSIBLE_EXTENT_MM, SizeCheck, check_size, likely_unit
 
@@ -2371,13 +2371,15 @@ def volume_stem(path) -> str:
     """The name of a volume's outputs: the file name without its extension.
 
     ``.nii.gz`` counts as one extension; a DICOM or TIFF-slice folder gives
-    its own name.
+    its own name, a :class:`hortishape.io.VolumeSource` its ``name``.
 
     Examples
     --------
     >>> volume_stem("scans/apple_001.nii.gz"), volume_stem("scans/pear.mha")
     ('apple_001', 'pear')
     """
+    if isinstance(path, VolumeSource):
+        return path.name
     p = Path(path)
     name = p.name
     for ext in sorted(volume_formats(), key=len, reverse=True):
@@ -2387,12 +2389,12 @@ def volume_stem(path) -> str:
 
 
 def is_volume_source(path) -> bool:
-    """Whether ``path`` is a volume :func:`hortishape.io.read_volume` reads.
+    """Whether ``path`` is one volume :func:`hortishape.io.read_volume` reads.
 
     A file with a volume extension (``.mha``, ``.mhd``, ``.nrrd``, ``.nhdr``,
-    ``.nii``, ``.nii.gz``, ``.tif``, ``.tiff``), or a folder of ``.dcm`` files
-    or of at least two ``.tif`` slices. Hidden names (starting with a dot) are
-    not volumes.
+    ``.nii``, ``.nii.gz``, ``.tif``, ``.tiff``), or a folder holding one DICOM
+    series (found by content, whatever its files are called) or at least two
+    ``.tif`` slices. Hidden names (starting with a dot) are not volumes.
 
     Examples
     --------
@@ -2400,18 +2402,16 @@ def is_volume_source(path) -> bool:
     False
     """
     p = Path(path)
-    if p.name.startswith("."):
+    if p.name.startswith(".") or not p.exists():
         return False
     if p.is_file():
         return any(p.name.lower().endswith(ext) for ext in volume_formats())
-    if p.is_dir():
-        names = [f.name.lower() for f in p.iterdir() if f.is_file() and not f.name.startswith(".")]
-        return any(n.endswith(".dcm") for n in names) or sum(n.endswith((".tif", ".tiff")) for n in names) >= 2
-    return False
+    found = find_sources(p, meshes=False).volumes
+    return len(found) == 1 and found[0].path == p
 
 
-def find_volumes(folder) -> list[Path]:
-    """The volumes in ``folder`` (see :func:`is_volume_source`), sorted by name.
+def find_volumes(folder) -> list[VolumeSource]:
+    """The volumes in ``folder`` and its subfolders (:func:`hortishape.io.find_sources`), sorted by name.
 
     Raises
     ------
@@ -2421,7 +2421,34 @@ def find_volumes(folder) -> list[Path]:
     folder = Path(folder)
     if not folder.is_dir():
         raise HortishapeError(f"{folder}: not a folder")
-    return sorted(p for p in folder.iterdir() if is_volume_source(p))
+    return list(find_sources(folder, meshes=False).volumes)
+
+
+def collect_volumes(paths, *, exclude=()) -> tuple[list, list[tuple[str, str]]]:
+    """The volumes to extract from files and folders, as ``extract`` and ``build`` take them.
+
+    A file is taken as it is (:func:`hortishape.io.read_volume` says what is
+    wrong with it); a folder is searched with its subfolders
+    (:func:`hortishape.io.find_sources`): each DICOM series, TIFF stack and
+    volume file in it is a volume. A folder without any is kept, for the
+    reader to say why.
+
+    Returns
+    -------
+    volumes : list of Path or VolumeSource
+    passed_over : list of (str, str)
+        Files and folders in the folders that are not volumes, with why.
+    """
+    volumes: list = []
+    passed: list[tuple[str, str]] = []
+    for p in (Path(x) for x in paths):
+        if p.is_dir():
+            found = find_sources(p, meshes=False, exclude=exclude)
+            volumes += list(found.volumes) or [p]
+            passed += list(found.skipped) if found.volumes else []
+        else:
+            volumes.append(p)
+    return volumes, passed
 
 
 @dataclass(frozen=True)
@@ -2473,17 +2500,11 @@ class ExtractResult:
     warnings: tuple = ()
 
 
-def _source_digest(path: Path) -> str:
-    """SHA-256 of a volume's bytes (with an .mhd's data file, or a folder's files)."""
+def _source_digest(source) -> str:
+    """SHA-256 of a volume's bytes (with an .mhd's data file, or a folder's or series' files)."""
     h = hashlib.sha256()
-    if path.is_dir():
-        files = sorted(f for f in path.iterdir() if f.is_file() and not f.name.startswith("."))
-    else:
-        files = [path]
-        if path.suffix.lower() in (".mhd", ".nhdr"):
-            files += sorted(f for f in path.parent.glob(path.stem + ".*")
-                            if f != path and f.suffix.lower() in (".raw", ".zraw", ".gz", ".raw.gz"))
-    for f in files:
+    src = source if isinstance(source, VolumeSource) else VolumeSource(volume_stem(source), Path(source))
+    for f in src.all_files():
         h.update(f.name.encode() + b"\0")
         with open(f, "rb") as fh:
             for block in iter(lambda: fh.read(1 << 20), b""):
@@ -2536,7 +2557,9 @@ def extract_file(source, out_dir, *, level: float | None = None, smoothing: int 
         (:data:`hortishape.units.PLAUSIBLE_EXTENT_MM`), with the voxel size
         that would make it one.
     """
-    source, out = Path(source), Path(out_dir)
+    source = source if isinstance(source, VolumeSource) else Path(source)
+    location = source.path if isinstance(source, VolumeSource) else source
+    out = Path(out_dir)
     stem = volume_stem(source)
     options = {"level": level, "smoothing": smoothing, "target_vertices": target_vertices,
                "remove_support": remove_support, "support_radius": support_radius}
@@ -2544,7 +2567,7 @@ def extract_file(source, out_dir, *, level: float | None = None, smoothing: int 
         options["spacing"] = [float(x) for x in spacing]
     ply, log_path, png = out / f"{stem}.ply", out / f"{stem}.json", out / f"{stem}.png"
     try:
-        if not source.exists():
+        if not location.exists():
             raise VolumeError(f"{source}: no such file or folder")
         digest = _source_digest(source)
         fingerprint = _settings(options)
@@ -2564,13 +2587,14 @@ def extract_file(source, out_dir, *, level: float | None = None, smoothing: int 
             ext = extract_surface(vol, level=level, smoothing=smoothing, target_vertices=target_vertices,
                                   remove_support=remove_support, support_radius=support_radius,
                                   name=str(source))
-        units = {**_check_extent(ext.mesh.vertices, vol.spacing, source).as_log(), "spacing_mm": vol.spacing.tolist()}
+        units = {**_check_extent(ext.mesh.vertices, vol.spacing, source).as_log(), "spacing_mm": vol.spacing.tolist(),
+                 "spacing_source": vol.spacing_source}
         seconds = time.perf_counter() - start
         slices = _ExtractionSlices.of(vol, ext) if picture else None
         del vol  # before the picture's libraries arrive
         write_mesh(ply, ext.mesh)
         if picture:
-            _draw_extraction(slices, ext, png, title=source.name, width=_PICTURE_SIZE[0], height=_PICTURE_SIZE[1],
+            _draw_extraction(slices, ext, png, title=stem, width=_PICTURE_SIZE[0], height=_PICTURE_SIZE[1],
                              backend="auto")
         log = {
             "source": str(source),
@@ -2670,8 +2694,9 @@ def extract_files(
 
     Parameters
     ----------
-    sources : sequence of path
-        Volume files or DICOM / TIFF-slice folders.
+    sources : sequence of path or VolumeSource
+        Volume files, DICOM / TIFF-slice folders, or what
+        :func:`collect_volumes` found.
     out_dir : path
     level, smoothing, target_vertices, remove_support, support_radius, picture, spacing
         See :func:`extract_file`.
@@ -2701,7 +2726,7 @@ def extract_files(
     """
     _check_options(smoothing, target_vertices, support_radius)
     out = Path(out_dir)
-    paths = [Path(s) for s in sources]
+    paths = [s if isinstance(s, VolumeSource) else Path(s) for s in sources]
     stems = [volume_stem(p) for p in paths]
     dup = sorted({s for s in stems if stems.count(s) > 1})
     if dup:
@@ -2710,7 +2735,11 @@ def extract_files(
     options = {"level": level, "smoothing": smoothing, "target_vertices": target_vertices,
                "remove_support": remove_support, "support_radius": support_radius, "picture": picture,
                "spacing": spacing}
-    where = (lambda q: str(q.resolve())) if scheduler is not None else str  # a worker has its own working folder
-    jobs = [(where(p), where(out), options) for p in paths]
+    def where(q):  # a worker has its own working folder
+        if isinstance(q, VolumeSource):
+            return q.resolved() if scheduler is not None else q
+        return str(q.resolve()) if scheduler is not None else str(q)
+
+    jobs = [(where(p), str(out.resolve()) if scheduler is not None else str(out), options) for p in paths]
     return run_jobs(_extract_job, jobs, n_jobs=n_jobs, progress=progress, stop=raise_failed if strict else None,
                     scheduler=scheduler)

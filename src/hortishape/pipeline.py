@@ -140,18 +140,21 @@ def find_meshes(folder) -> list[Path]:
 
 def find_scans(folder, out_dir, *, n_jobs: int | None = None, strict: bool = False,
                progress: Callable[[int, str], Progress] | None = None,
-               spacing: Sequence[float] | None = None, scheduler=None) -> tuple[list[Path], list[tuple[str, str]]]:
-    """The scans in ``folder``: its mesh files and the surfaces of its CT volumes.
+               spacing: Sequence[float] | None = None,
+               scheduler=None) -> tuple[list[Path], list[tuple[str, str]], list[tuple[str, str]]]:
+    """The scans in ``folder``: its mesh files and the surfaces of its CT and MRI volumes.
 
-    Volumes (:func:`hortishape.extract.find_volumes`: MHA/MHD, NRRD, NIfTI,
-    TIFF, DICOM or TIFF-slice folders) are extracted first, with the default
-    settings, into ``out_dir/surfaces/<stem>.ply``
-    (:func:`hortishape.extract.extract_files`); a volume already extracted
-    from the same bytes is not redone. ``spacing`` (mm along x, y, z)
-    replaces the voxel size the volume files give (see
-    :func:`hortishape.extract.extract_file`). With ``scheduler`` the
-    extractions run on that Dask cluster, whose workers must see ``folder``
-    and ``out_dir`` (they read and write them directly).
+    What is a scan is decided by :func:`hortishape.io.find_sources`, as for
+    ``hortishape extract``: the mesh files in ``folder``, and the volumes in it
+    and its subfolders (MHA/MHD, NRRD, NIfTI, TIFF stacks, TIFF-slice folders,
+    DICOM series found by content, several per study folder). Volumes are
+    extracted first, with the default settings, into
+    ``out_dir/surfaces/<name>.ply`` (:func:`hortishape.extract.extract_files`);
+    a volume already extracted from the same bytes is not redone.
+    ``spacing`` (mm along x, y, z) replaces the voxel size the volume files
+    give (see :func:`hortishape.extract.extract_file`). With ``scheduler``
+    the extractions run on that Dask cluster, whose workers must see
+    ``folder`` and ``out_dir`` (they read and write them directly).
 
     Returns
     -------
@@ -159,6 +162,8 @@ def find_scans(folder, out_dir, *, n_jobs: int | None = None, strict: bool = Fal
         Mesh files and extracted surfaces, sorted by name.
     failed : list of (str, str)
         ``(volume, reason)`` of every volume whose extraction failed.
+    passed_over : list of (str, str)
+        ``(path, reason)`` of every file or folder that is not a scan.
 
     Raises
     ------
@@ -166,25 +171,28 @@ def find_scans(folder, out_dir, *, n_jobs: int | None = None, strict: bool = Fal
         If ``folder`` is not a folder or holds neither meshes nor volumes; with
         ``strict``, for the first volume that fails.
     """
-    from .extract import extract_files, find_volumes
-    from .io import volume_formats
+    from .extract import extract_files
+    from .io import find_sources, volume_formats
 
     folder = Path(folder)
     if not folder.is_dir():
         raise HortishapeError(f"{folder}: not a folder")
-    files = [p for p in folder.iterdir() if p.is_file() and is_mesh_file(p)]
-    volumes = find_volumes(folder)
-    if not files and not volumes:
+    found = find_sources(folder, exclude=[out_dir])
+    files = list(found.meshes)
+    passed = list(found.skipped)
+    if not files and not found.volumes:
+        why = "; ".join(f"{p}: {r}" for p, r in passed[:3])
         raise HortishapeError(f"{folder}: no mesh files or volumes (looked for "
-                              f"{', '.join(mesh_formats() + volume_formats())})")
+                              f"{', '.join(mesh_formats() + volume_formats())} and DICOM series)"
+                              + (f"; passed over {why}" if why else ""))
     failed = []
-    if volumes:
-        results = extract_files(volumes, ModelDir(out_dir).surfaces, n_jobs=n_jobs, strict=strict,
-                                progress=_stage(progress, len(volumes), "extract"), spacing=spacing,
+    if found.volumes:
+        results = extract_files(found.volumes, ModelDir(out_dir).surfaces, n_jobs=n_jobs, strict=strict,
+                                progress=_stage(progress, len(found.volumes), "extract"), spacing=spacing,
                                 scheduler=scheduler)
         files += [Path(r.mesh) for r in results if r.ok]
         failed = [(r.source, r.error) for r in results if not r.ok]
-    return sorted(files, key=lambda p: p.name), failed
+    return sorted(files, key=lambda p: p.name), failed, passed
 
 
 def template_fingerprint(template: Template, config: RegistrationConfig, *, scale: float = 1.0) -> str:
@@ -775,12 +783,13 @@ def build_model(
     start = time.perf_counter()
     out = Path(out_dir)
     layout = ModelDir(out)
-    files, failed = find_scans(input_dir, out, n_jobs=n_jobs, strict=strict, progress=progress, spacing=spacing,
-                               scheduler=scheduler)
+    files, failed, passed = find_scans(input_dir, out, n_jobs=n_jobs, strict=strict, progress=progress,
+                                       spacing=spacing, scheduler=scheduler)
     checks = check_scans(files, scale=scale)
     skipped = failed + [(c.path, c.error) for c in checks if not c.ok]
     if strict and skipped:
         raise HortishapeError(skipped[0][1])
+    skipped = [(p, f"{p}: {r}") for p, r in passed] + skipped
     usable = [Path(c.path) for c in checks if c.ok]
     if len(usable) < 3:
         reasons = "; ".join(e for _, e in skipped[:3])
@@ -1157,8 +1166,8 @@ def update_model(
                               f"({src.aligned_mesh(missing[0])}); it is needed to update the model")
 
     layout.root.mkdir(parents=True, exist_ok=True)
-    files, failed = find_scans(input_dir, layout.root, n_jobs=n_jobs, strict=strict, progress=progress,
-                               spacing=spacing, scheduler=scheduler)
+    files, failed, passed = find_scans(input_dir, layout.root, n_jobs=n_jobs, strict=strict, progress=progress,
+                                       spacing=spacing, scheduler=scheduler)
     checks = check_scans(files, scale=scale)
     skipped = failed + [(c.path, c.error) for c in checks if not c.ok]
     taken = set(old_names)
@@ -1167,6 +1176,7 @@ def update_model(
             skipped.append((c.path, f"{c.path}: a scan named {Path(c.path).stem} is already in the model"))
     if strict and skipped:
         raise HortishapeError(skipped[0][1])
+    skipped = [(p, f"{p}: {r}") for p, r in passed] + skipped
     usable = [Path(c.path) for c in checks if c.ok and Path(c.path).stem not in taken]
     cfg = config if config is not None else RegistrationConfig()
     template = prepare_reference(Mesh(old_model.mean_, old_model.faces_), None)

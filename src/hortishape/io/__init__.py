@@ -44,8 +44,11 @@ boundary. Lengths are millimetres. World coordinates follow ITK's convention
     world = origin + direction @ (spacing * [i, j, k])
 
 MetaImage (``.mha`` / ``.mhd``) is read and written natively with numpy;
-NRRD, NIfTI, DICOM series folders and TIFF stacks go through the optional
-``SimpleITK`` package (``pip install "hortishape[ct]"``).
+NRRD and NIfTI go through the optional ``SimpleITK`` package, DICOM series
+through ``pydicom`` and TIFF stacks through ``tifffile``
+(``pip install "hortishape[ct]"``). :func:`find_sources` finds the scans
+in folders by content (DICOM series whatever their files are called, in
+nested study folders) and says what it passed over, and why.
 
 All writers are atomic: data go to a temporary file next to the target,
 which replaces the target only once complete.
@@ -53,13 +56,17 @@ which replaces the target only once complete.
 
 from .mesh_files import MeshData, is_mesh_file, mesh_formats, read_mesh, read_mesh_data, write_mesh
 from .point_files import PointCloud, read_points, write_points
+from .sources import Sources, VolumeSource, find_sources
 from .volume import Volume
 from .volume_files import read_volume, volume_formats, write_volume
 
 __all__ = [
     "MeshData",
     "PointCloud",
+    "Sources",
     "Volume",
+    "VolumeSource",
+    "find_sources",
     "is_mesh_file",
     "mesh_formats",
     "read_mesh",

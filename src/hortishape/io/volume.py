@@ -62,6 +62,8 @@ class Volume:
         World position of voxel ``[0, 0, 0]`` in mm.
     direction : (3, 3) array_like of float, default: identity
         Orthonormal; column ``j`` is the world direction of index axis ``j``.
+    spacing_source : str, default: ""
+        Where the voxel size came from (a file's header, a scanner log, given).
 
     Examples
     --------
@@ -76,6 +78,7 @@ class Volume:
     spacing: np.ndarray
     origin: np.ndarray = None  # type: ignore[assignment]
     direction: np.ndarray = None  # type: ignore[assignment]
+    spacing_source: str = ""
 
     def __post_init__(self) -> None:
         origin = np.zeros(3) if self.origin is None else self.origin

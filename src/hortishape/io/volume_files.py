@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from types import MappingProxyType
@@ -15,7 +14,10 @@ from .._files import PathLike, check_not_empty, full_suffix
 from ..errors import VolumeError
 from ._common import _ParseError, _RawVolume
 from .metaimage import _read_metaimage, _write_metaimage
+from .dicom import read_series
 from .simpleitk import _read_sitk, _sitk_message, _write_sitk
+from .sources import VolumeSource, find_sources
+from .tiff import LOG_EXTENSIONS, TIFF_EXTENSIONS, _write_tiff, read_tiff
 from .volume import Volume, _check_volume
 
 
@@ -27,7 +29,7 @@ class _VolumeFormat(NamedTuple):
 
 _METAIMAGE = _VolumeFormat("MetaImage", _read_metaimage, _write_metaimage)
 _NIFTI = _VolumeFormat("NIfTI", _read_sitk, _write_sitk)
-_TIFF = _VolumeFormat("TIFF", _read_sitk, _write_sitk)
+_TIFF = _VolumeFormat("TIFF", _read_sitk, _write_tiff)
 
 _VOLUME_FORMATS: Mapping[str, _VolumeFormat] = MappingProxyType(
     {
@@ -65,35 +67,39 @@ def read_volume(path: PathLike, *, spacing: npt.ArrayLike | None = None) -> Volu
 
     Parameters
     ----------
-    path : str or os.PathLike
+    path : str, os.PathLike or VolumeSource
         A ``.mha`` / ``.mhd`` MetaImage (read natively), a ``.nrrd`` /
-        ``.nhdr``, ``.nii`` / ``.nii.gz``, a multi-page ``.tif`` / ``.tiff``,
-        a folder holding one DICOM series, or a folder of 2D ``.tif`` slices
-        (in natural name order: ``s2`` before ``s10``). All but MetaImage need
-        the optional ``SimpleITK`` package.
+        ``.nhdr``, ``.nii`` / ``.nii.gz`` (through ``SimpleITK``), a
+        multi-page ``.tif`` / ``.tiff`` or a folder of 2D ``.tif`` slices (in
+        natural name order: ``s2`` before ``s10``; through ``tifffile``), a
+        folder holding one DICOM series whatever its files are called
+        (through ``pydicom``), or one :class:`VolumeSource` of
+        :func:`find_sources` (a series of a folder holding several).
     spacing : (3,) array_like of float or float, optional
-        Voxel size (mm) along x, y, z replacing the file's. TIFF stores no
-        trustworthy spacing: without ``spacing`` it is read as 1 mm on every
-        axis, with a warning.
+        Voxel size (mm) along x, y, z replacing the file's. A TIFF's comes
+        from its OME or ImageJ metadata or the scanner's log beside it
+        (SkyScan ``.log``, Nikon ``.xtekct``); a TIFF with none of them
+        needs ``spacing``.
 
     Returns
     -------
     Volume
-        ``data`` indexed ``[x, y, z]``, spacing and origin in mm, direction.
-        NIfTI units (``xyzt_units``) are converted to mm by SimpleITK; unknown
-        units are taken as mm.
+        ``data`` indexed ``[x, y, z]``, spacing and origin in mm, direction,
+        and where the voxel size came from (``spacing_source``). DICOM values
+        have the rescale slope and intercept applied (Hounsfield units in
+        CT); their slice step is taken from the slices' positions. NIfTI units
+        (``xyzt_units``) are converted to mm by SimpleITK; unknown units are
+        taken as mm.
 
     Raises
     ------
     VolumeError
         The message starts with the path and names the problem: missing,
         empty, unknown format, not 3D, several channels, NaN voxels, zero or
-        negative spacing, truncated or corrupt data, missing SimpleITK.
-
-    Warns
-    -----
-    UserWarning
-        TIFF read without ``spacing``.
+        negative spacing, no voxel size anywhere, truncated or corrupt data,
+        a DICOM series with a slice missing, uneven slice steps, a gantry
+        tilt or slices of several sizes, a folder of several series, a
+        missing optional dependency.
 
     Examples
     --------
@@ -104,27 +110,45 @@ def read_volume(path: PathLike, *, spacing: npt.ArrayLike | None = None) -> Volu
     >>> read_volume(path).shape
     (2, 3, 4)
     """
-    p = Path(path)
+    source = path if isinstance(path, VolumeSource) else None
+    p = source.path if source is not None else Path(path)
     if not p.exists():
         raise VolumeError(f"{p}: no such file or folder")
     extension = full_suffix(p)
-    if p.is_dir():  # a DICOM series or TIFF slices
-        read = _read_sitk
-    else:
-        if extension == ".dcm":
+    if source is None and p.is_dir():  # a DICOM series or TIFF slices
+        found = find_sources(p, meshes=False)
+        if not found.volumes:
+            why = f" ({found.skipped[0][0]}: {found.skipped[0][1]})" if found.skipped else ""
+            raise VolumeError(f"{p}: the folder holds no DICOM series and no .tif slices{why}")
+        if len(found.volumes) > 1:
+            kinds = "DICOM series" if all(v.kind == "dicom" for v in found.volumes) else "volumes"
             raise VolumeError(
-                f"{p}: a single DICOM file holds one slice; pass the folder of the series"
+                f"{p}: the folder holds {len(found.volumes)} {kinds} ({', '.join(v.name for v in found.volumes)}); "
+                "read them one by one (hortishape.io.find_sources lists them; 'hortishape extract' takes them all)"
             )
-        if extension not in _VOLUME_FORMATS:
-            shown = extension or "(none)"
-            raise VolumeError(
-                f"{p}: unknown volume format {shown!r}; supported: {', '.join(volume_formats())}, "
-                "or a folder of DICOM files or of .tif slices"
-            )
-        check_not_empty(p, VolumeError)
-        read = _VOLUME_FORMATS[extension].read
+        source = found.volumes[0]
+    info: dict = {}
     try:
-        raw = read(p)
+        if source is not None and source.kind == "dicom":
+            raw, info = read_series(list(source.files), name=p)
+        elif (source is not None and source.kind == "tiff-slices") or extension in TIFF_EXTENSIONS:
+            if p.is_file():
+                check_not_empty(p, VolumeError)
+            raw, info = read_tiff(p)
+        else:
+            if extension == ".dcm":
+                raise VolumeError(
+                    f"{p}: a single DICOM file holds one slice; pass the folder of the series"
+                )
+            if extension not in _VOLUME_FORMATS:
+                shown = extension or "(none)"
+                raise VolumeError(
+                    f"{p}: unknown volume format {shown!r}; supported: {', '.join(volume_formats())}, "
+                    "or a folder of DICOM files or of .tif slices"
+                )
+            check_not_empty(p, VolumeError)
+            raw = _VOLUME_FORMATS[extension].read(p)
+            info = {"spacing_source": f"the {_VOLUME_FORMATS[extension].name} header"}
     except VolumeError:
         raise
     except _ParseError as exc:
@@ -136,17 +160,16 @@ def read_volume(path: PathLike, *, spacing: npt.ArrayLike | None = None) -> Volu
     except ValueError as exc:
         raise VolumeError(f"{p}: cannot read it ({exc})") from exc
     file_spacing = raw.spacing
-    if not raw.geometry_known and spacing is None:
-        warnings.warn(
-            f"{p}: TIFF stores no reliable voxel spacing; assuming 1 mm along x, y and z "
-            "(set it with spacing=, or hortishape extract --spacing SX SY SZ)",
-            UserWarning,
-            stacklevel=2,
-        )
+    where = info.get("spacing_source", "")
     if spacing is not None:
-        file_spacing = np.asarray(spacing, dtype=np.float64)
+        file_spacing, where = np.asarray(spacing, dtype=np.float64), "given (spacing=, --spacing)"
+    elif not raw.geometry_known:
+        raise VolumeError(
+            f"{p}: no voxel size: the TIFF holds no OME or ImageJ voxel size and no scanner log beside it "
+            f"({', '.join(LOG_EXTENSIONS)}) states one; give it with --spacing SX SY SZ (mm)"
+        )
     arr, s, o, d = _check_volume(raw.data, file_spacing, raw.origin, raw.direction, name=str(p))
-    return Volume(arr, s, o, d)
+    return Volume(arr, s, o, d, spacing_source=where)
 
 
 def write_volume(path: PathLike, volume: Volume, *, compress: bool = True) -> Path:

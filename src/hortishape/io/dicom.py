@@ -1,0 +1,262 @@
+"""DICOM series as scanners and PACS export them, through the optional pydicom package.
+
+A series is found by content, not by file name: slice files often have no
+extension (``IM0000``, ``00000001``), one folder can hold several series, and a
+study folder or a DICOMDIR's tree holds them in nested folders. The series
+(SeriesInstanceUID) of each slice is read from its header; the slices of one
+series are put in order along the normal of their ImageOrientationPatient and
+the slice spacing is taken from their ImagePositionPatient, not from
+SliceThickness (which is the slab's width, not the step). A series whose
+slices are not evenly spaced (a slice missing), are not stacked along their
+normal (a gantry tilt), or differ in size or orientation, is refused with a
+message saying what is wrong and where: a surface from it would be distorted.
+"""
+
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import VolumeError
+from ._common import _ParseError, _RawVolume
+
+#: Extensions of files that may be DICOM slices without the 128-byte preamble
+#: and "DICM" mark (old ACR-NEMA style exports); other files need the mark.
+_MAYBE_DICOM = ("", ".dcm", ".dicom", ".dic", ".ima")
+
+#: Relative spread of the steps between slices above which a series is refused
+#: (a missing slice doubles one step; rounding of positions in headers is far smaller).
+SLICE_STEP_TOLERANCE = 0.05
+
+#: Largest angle (degrees) between the slices' stacking direction and their
+#: normal that is not a gantry tilt (headers round positions to a few digits).
+TILT_TOLERANCE_DEG = 0.5
+
+_HEADER_TAGS = ("SeriesInstanceUID", "SeriesDescription", "SeriesNumber", "SOPClassUID", "Rows", "Columns",
+                "ImagePositionPatient", "ImageOrientationPatient", "PixelSpacing", "InstanceNumber",
+                "NumberOfFrames", "SliceThickness", "SpacingBetweenSlices", "Modality")
+
+_DICOMDIR_CLASS = "1.2.840.10008.1.3.10"  # Media Storage Directory Storage
+
+
+def _pydicom(path: Path):
+    try:
+        return importlib.import_module("pydicom")
+    except ImportError:
+        raise VolumeError(
+            f"{path}: reading DICOM needs the optional dependency 'pydicom' (pip install \"hortishape[ct]\")"
+        ) from None
+
+
+@dataclass(frozen=True)
+class DicomHeader:
+    """What a slice's header says about the series it belongs to (read without its pixels)."""
+
+    path: Path
+    series_uid: str
+    description: str
+    number: str
+    rows: int
+    columns: int
+    frames: int
+    is_directory: bool = False  # a DICOMDIR
+
+
+def has_dicom_mark(path: Path) -> bool:
+    """Whether the file starts with the DICOM preamble and ``DICM`` mark."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(132)
+    except OSError:
+        return False
+    return len(head) == 132 and head[128:132] == b"DICM"
+
+
+def read_header(path: Path) -> DicomHeader | None:
+    """The header of a DICOM file, or None when the file is not DICOM (or too broken to say)."""
+    marked = has_dicom_mark(path)
+    if not marked and path.suffix.lower() not in _MAYBE_DICOM:
+        return None
+    pydicom = _pydicom(path)
+    try:
+        ds = pydicom.dcmread(path, stop_before_pixels=True, force=not marked, specific_tags=list(_HEADER_TAGS))
+        if not marked and "SOPClassUID" not in ds and "Rows" not in ds:
+            return None  # force=True reads anything; without these it was not DICOM
+        sop = str(ds.get("SOPClassUID", "") or getattr(getattr(ds, "file_meta", None), "MediaStorageSOPClassUID", ""))
+        if path.name.upper() == "DICOMDIR" or sop == _DICOMDIR_CLASS:
+            return DicomHeader(path, "", "", "", 0, 0, 0, is_directory=True)
+        return DicomHeader(
+            path=path,
+            series_uid=str(ds.get("SeriesInstanceUID", "") or ""),
+            description=str(ds.get("SeriesDescription", "") or "").strip(),
+            number=str(ds.get("SeriesNumber", "") or "").strip(),
+            rows=int(ds.get("Rows", 0) or 0),
+            columns=int(ds.get("Columns", 0) or 0),
+            frames=int(ds.get("NumberOfFrames", 1) or 1),
+        )
+    except Exception:  # noqa: BLE001 - pydicom raises many kinds on a broken header; then it is not a slice
+        return None
+
+
+def _floats(ds, keyword: str, n: int, where: Path) -> np.ndarray | None:
+    value = ds.get(keyword)
+    if value is None:
+        return None
+    items = list(value) if hasattr(value, "__len__") and not isinstance(value, (str, bytes)) else [value]
+    try:
+        arr = np.array([float(v) for v in items], dtype=np.float64)
+    except (TypeError, ValueError):
+        raise _ParseError(f"slice {where.name}: {keyword} is not numeric ({value!r})") from None
+    if arr.size != n or not np.all(np.isfinite(arr)):
+        raise _ParseError(f"slice {where.name}: {keyword} should hold {n} numbers, got {value!r}")
+    return arr
+
+
+def _pixels(ds, path: Path) -> np.ndarray:
+    """A slice's stored values (rows, columns), decoded by pydicom, or by SimpleITK for what pydicom cannot."""
+    try:
+        arr = ds.pixel_array
+    except Exception as exc:  # noqa: BLE001 - truncated data, an unknown compression: say which slice
+        try:
+            sitk = importlib.import_module("SimpleITK")
+            arr = sitk.GetArrayFromImage(sitk.ReadImage(str(path)))
+            arr = arr.reshape(arr.shape[-2:]) if arr.ndim == 3 and arr.shape[0] == 1 else arr
+        except Exception:  # noqa: BLE001
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise _ParseError(f"slice {path.name}: cannot decode its pixels ({first})") from None
+    arr = np.asarray(arr)
+    if arr.ndim != 2:
+        what = "colour" if arr.ndim == 3 and arr.shape[-1] in (3, 4) else f"shape {arr.shape}"
+        raise _ParseError(f"slice {path.name}: is not one grey-value image ({what})")
+    return arr
+
+
+def read_series(files: list[Path], *, name: Path) -> tuple[_RawVolume, dict]:
+    """Read one series' slices into a volume indexed ``[x, y, z]``.
+
+    Parameters
+    ----------
+    files : list of Path
+        The slices of one series (any order).
+    name : Path
+        What error messages start with (the folder).
+
+    Returns
+    -------
+    raw : _RawVolume
+        Values after the rescale slope and intercept (Hounsfield units in CT).
+    info : dict
+        ``spacing_source``, ``series_uid``, ``series_description``, ``n_slices``, ``modality``.
+    """
+    pydicom = _pydicom(name)
+    slices = []
+    for f in files:
+        try:
+            ds = pydicom.dcmread(f, force=not has_dicom_mark(f))
+        except Exception as exc:  # noqa: BLE001 - a truncated or garbled header
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise _ParseError(f"slice {f.name}: cannot read its header ({first})") from None
+        slices.append((f, ds))
+    if len(slices) == 1 and int(slices[0][1].get("NumberOfFrames", 1) or 1) > 1:
+        raise _ParseError(f"{files[0].name} is a multi-frame DICOM file, not yet supported; "
+                          "export the series as one file per slice")
+    if len(slices) < 2:
+        raise _ParseError(f"the series has {len(slices)} slice; a volume needs at least 2")
+    uids = {str(ds.get("SeriesInstanceUID", "")) for _, ds in slices}
+    if len(uids) > 1:
+        raise _ParseError(f"holds {len(uids)} DICOM series; read each on its own")
+    sizes = {}
+    for f, ds in slices:
+        sizes.setdefault((int(ds.get("Rows", 0) or 0), int(ds.get("Columns", 0) or 0)), []).append(f.name)
+    if len(sizes) > 1:
+        (common, _), *others = sorted(sizes.items(), key=lambda kv: -len(kv[1]))
+        odd = others[0][1][0]
+        raise _ParseError(f"slice {odd} is {others[0][0][1]} x {others[0][0][0]} pixels, "
+                          f"the others {common[1]} x {common[0]}")
+    f0, ds0 = slices[0]
+    orient = _floats(ds0, "ImageOrientationPatient", 6, f0)
+    spacing_px = _floats(ds0, "PixelSpacing", 2, f0)
+    if spacing_px is None:
+        spacing_px = _floats(ds0, "ImagerPixelSpacing", 2, f0)
+    if spacing_px is None or np.any(spacing_px <= 0):
+        raise _ParseError(f"slice {f0.name}: no PixelSpacing, so no voxel size; give it with --spacing SX SY SZ")
+    positions = [_floats(ds, "ImagePositionPatient", 3, f) for f, ds in slices]
+    if orient is not None and all(p is not None for p in positions):
+        for f, ds in slices[1:]:
+            o = _floats(ds, "ImageOrientationPatient", 6, f)
+            if o is None or np.abs(o - orient).max() > 1e-4:
+                raise _ParseError(f"slice {f.name}: its orientation differs from slice {f0.name}'s")
+        row, col = orient[:3], orient[3:]
+        row, col = row / np.linalg.norm(row), col / np.linalg.norm(col)
+        normal = np.cross(row, col)
+        pos = np.array(positions)
+        along = pos @ normal
+        order = np.argsort(along, kind="stable")
+        along, pos = along[order], pos[order]
+        slices = [slices[k] for k in order]
+        steps = np.diff(along)
+        if np.any(steps <= 1e-6 * max(1.0, float(np.abs(along).max()))):
+            k = int(np.argmin(steps))
+            raise _ParseError(f"slices {slices[k][0].name} and {slices[k + 1][0].name} lie at the same place "
+                              "(two acquisitions or echoes in one series?)")
+        step = float(np.median(steps))
+        bad = np.abs(steps - step) > SLICE_STEP_TOLERANCE * step
+        if np.any(bad):
+            k = int(np.flatnonzero(bad)[0])
+            what = (f"about {round(steps[k] / step) - 1} slice(s) missing" if steps[k] > 1.5 * step
+                    else "uneven slice spacing")
+            raise _ParseError(
+                f"{what}: {steps[k]:.4g} mm between slices {slices[k][0].name} and {slices[k + 1][0].name}, "
+                f"{step:.4g} mm elsewhere; a surface from it would be distorted (export the whole series)")
+        stack = pos[-1] - pos[0]
+        cos = abs(float(stack @ normal)) / max(float(np.linalg.norm(stack)), 1e-12)
+        tilt = float(np.degrees(np.arccos(min(1.0, cos))))
+        if tilt > TILT_TOLERANCE_DEG:
+            raise _ParseError(
+                f"the slices are stacked {tilt:.1f} degrees off their normal (a gantry tilt); resample the series "
+                "to an upright grid (e.g. in the scanner's software) before extracting a surface")
+        direction = np.column_stack([row, col, normal])
+        origin = pos[0]
+        spacing = np.array([spacing_px[1], spacing_px[0], step])
+        source = "DICOM PixelSpacing and ImagePositionPatient"
+    else:
+        # No geometry per slice: the order of InstanceNumber, the step from the header.
+        numbers = [ds.get("InstanceNumber") for _, ds in slices]
+        if any(n is None for n in numbers):
+            raise _ParseError("the slices have neither ImagePositionPatient nor InstanceNumber: their order is unknown")
+        slices = [slices[k] for k in np.argsort([int(n) for n in numbers], kind="stable")]
+        step = None
+        for key in ("SpacingBetweenSlices", "SliceThickness"):
+            value = ds0.get(key)
+            if value not in (None, "") and float(value) > 0:
+                step, source = float(value), f"DICOM PixelSpacing and {key} (no ImagePositionPatient)"
+                break
+        if step is None:
+            raise _ParseError("no slice positions and no SliceThickness: the slice step is unknown; "
+                              "give it with --spacing SX SY SZ")
+        direction, origin = np.eye(3), np.zeros(3)
+        spacing = np.array([spacing_px[1], spacing_px[0], step])
+    planes = []
+    for f, ds in slices:
+        values = _pixels(ds, f).astype(np.float64)
+        slope = float(ds.get("RescaleSlope", 1) or 1)
+        intercept = float(ds.get("RescaleIntercept", 0) or 0)
+        planes.append((values, slope, intercept))
+    integral = all(s == 1.0 and float(i).is_integer() for _, s, i in planes)
+    data = np.stack([v * s + i for v, s, i in planes], axis=-1)  # (rows, columns, slices)
+    data = data.transpose(1, 0, 2)  # [x = column, y = row, z = slice]
+    if integral:
+        lo, hi = float(data.min()), float(data.max())
+        for dtype in (np.int16, np.int32):
+            if np.iinfo(dtype).min <= lo and hi <= np.iinfo(dtype).max:
+                data = data.astype(dtype)
+                break
+    else:
+        data = data.astype(np.float32)
+    info = {"spacing_source": source, "series_uid": str(ds0.get("SeriesInstanceUID", "")),
+            "series_description": str(ds0.get("SeriesDescription", "") or ""), "n_slices": len(slices),
+            "modality": str(ds0.get("Modality", "") or "")}
+    return _RawVolume(np.ascontiguousarray(data), spacing, origin, direction), info
