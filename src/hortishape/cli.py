@@ -1132,10 +1132,20 @@ _COMMANDS = [_add_demo, _add_synth, _add_extract, _add_register, _add_build, _ad
              _add_evaluate, _add_view, _add_convert]
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """A warning as a user reads it: one ``hortishape: warning:`` line, without Python's file and line."""
+    text = " ".join(str(message).split())
+    print(f"hortishape: warning: {text}", file=file if file is not None else sys.stderr, flush=True)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit status."""
+    import warnings
+
     parser = build_parser()
     args = parser.parse_args(argv)
+    shown = warnings.showwarning
+    warnings.showwarning = _show_warning  # worker processes forked from here inherit it
     try:
         return int(args.run(args) or 0)
     except HortishapeError as exc:
@@ -1148,6 +1158,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("hortishape: interrupted", file=sys.stderr)
         return 130
+    finally:
+        warnings.showwarning = shown
 
 
 if __name__ == "__main__":  # pragma: no cover

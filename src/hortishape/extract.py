@@ -107,7 +107,7 @@ from ._files import Progress, atomic_path
 from ._memory import give_back_freed_memory
 from .io import Volume, VolumeSource, find_sources, read_volume, volume_formats, write_mesh
 from .mesh import Mesh
-from .units import PLAUSIBLE_EXTENT_MM, SizeCheck, check_size, likely_unit
+from .units import PRODUCT_EXTENT_MM, PRODUCT_VOLUME_ML, SizeCheck, check_size, likely_unit, plausible_voxel_factors
 
 __all__ = [
     "ExtractResult",
@@ -230,8 +230,8 @@ PADDING_GAP = 0.1
 OUTER_MAX_SHARE = 0.75
 #: Fewer rays than this reaching the product: the histogram's peaks are kept.
 OUTER_MIN_RAYS = 50
-#: A surface smaller or larger across than this (mm) is warned about (the
-#: size check refuses outside :data:`hortishape.units.PLAUSIBLE_EXTENT_MM`).
+#: A surface smaller or larger across than this (mm) is warned about
+#: (:func:`extract_file` refuses it, see :data:`hortishape.units.PRODUCT_EXTENT_MM`).
 FRUIT_EXTENT_MM = (10.0, 600.0)
 #: Across the slices (the coarsest axis, at least ``SLICE_ANISOTROPY`` times the finest),
 #: the ``SLICE_QUANTILE`` of the outermost tissue's peaks; where ``SLICE_SHARE`` of the way
@@ -2554,7 +2554,8 @@ def extract_file(source, out_dir, *, level: float | None = None, smoothing: int 
     ExtractResult
         Never raises for a bad volume: ``ok`` is False and ``error`` says why,
         also when the surface is not a fruit's size
-        (:data:`hortishape.units.PLAUSIBLE_EXTENT_MM`), with the voxel size
+        (:data:`hortishape.units.PRODUCT_EXTENT_MM`,
+        :data:`hortishape.units.PRODUCT_VOLUME_ML`), with the voxel size
         that would make it one.
     """
     source = source if isinstance(source, VolumeSource) else Path(source)
@@ -2587,7 +2588,7 @@ def extract_file(source, out_dir, *, level: float | None = None, smoothing: int 
             ext = extract_surface(vol, level=level, smoothing=smoothing, target_vertices=target_vertices,
                                   remove_support=remove_support, support_radius=support_radius,
                                   name=str(source))
-        units = {**_check_extent(ext.mesh.vertices, vol.spacing, source).as_log(), "spacing_mm": vol.spacing.tolist(),
+        units = {**_check_extent(ext.mesh.vertices, vol.spacing, source, ext.volume).as_log(), "spacing_mm": vol.spacing.tolist(),
                  "spacing_source": vol.spacing_source}
         seconds = time.perf_counter() - start
         slices = _ExtractionSlices.of(vol, ext) if picture else None
@@ -2640,21 +2641,33 @@ def extract_file(source, out_dir, *, level: float | None = None, smoothing: int 
         )
 
 
-def _check_extent(vertices: np.ndarray, spacing: np.ndarray, source: Path) -> SizeCheck:
-    """The size check of an extracted surface, whose unit is set by the voxel size."""
-    try:
+def _check_extent(vertices: np.ndarray, spacing: np.ndarray, source, volume_mm3: float) -> SizeCheck:
+    """The size check of an extracted surface, whose unit is set by the voxel size.
+
+    Stricter than a mesh's (:data:`hortishape.units.PRODUCT_EXTENT_MM` and
+    :data:`hortishape.units.PRODUCT_VOLUME_ML`): a wrong voxel size is the
+    likely cause, and the error names the voxel sizes that would make it a
+    fruit's size.
+    """
+    extent = float(np.ptp(vertices, axis=0).max())
+    ml = volume_mm3 / 1000.0
+    (lo, hi), (vlo, vhi) = PRODUCT_EXTENT_MM, PRODUCT_VOLUME_ML
+    if lo <= extent <= hi and vlo <= ml <= vhi:
         return check_size(vertices, name=str(source))
-    except MeshError:
-        extent = float(np.ptp(vertices, axis=0).max())
-        unit = likely_unit(extent)
-        given = " ".join(f"{x:g}" for x in spacing)
-        fix = ("" if unit is None else
-               f"; if the voxel size is in {unit[0]}, use --spacing {' '.join(f'{x * unit[1]:g}' for x in spacing)}")
-        lo, hi = PLAUSIBLE_EXTENT_MM
-        raise VolumeError(
-            f"{source}: the product is {extent:.3g} mm across with voxels of {given} mm, not a fruit's size "
-            f"({lo:g}-{hi:g} mm){fix}"
-        ) from None
+    f_lo, f_hi = plausible_voxel_factors(extent, volume_mm3)
+    given = " ".join(f"{x:g}" for x in spacing)
+    unit = likely_unit(extent)
+    if unit is not None and f_lo <= unit[1] <= f_hi:
+        fix = f"; if the voxel size is in {unit[0]}, use --spacing {' '.join(f'{x * unit[1]:g}' for x in spacing)}"
+    elif f_lo <= f_hi:
+        fix = (f"; a voxel size {f_lo:.3g} to {f_hi:.3g} times this one would make it one "
+               f"(--spacing SX SY SZ, e.g. {' '.join(f'{x * math.sqrt(f_lo * f_hi):.3g}' for x in spacing)})")
+    else:
+        fix = "; no voxel size makes it one (is this a fruit or vegetable?)"
+    raise VolumeError(
+        f"{source}: the product is {extent:.3g} mm across and holds {ml:.3g} mL with voxels of {given} mm, "
+        f"not a fruit's size ({lo:g}-{hi:g} mm, {vlo:g} mL-{vhi / 1000:g} L){fix}"
+    )
 
 
 def _result(stem: str, source: Path, log: dict, ply: Path, png: Path | None, *, resumed: bool) -> ExtractResult:

@@ -20,11 +20,19 @@ import numpy as np
 from .errors import MeshError
 from .mesh import Mesh
 
-__all__ = ["PLAUSIBLE_EXTENT_MM", "Scan", "SizeCheck", "check_size", "likely_unit", "read_scan", "scaled"]
+__all__ = ["PLAUSIBLE_EXTENT_MM", "PRODUCT_EXTENT_MM", "PRODUCT_VOLUME_ML", "Scan", "SizeCheck", "check_size", "likely_unit", "read_scan", "scaled"]
 
 #: The largest extent (bounding box, mm) a fruit or vegetable can have: from
 #: a few millimetres (a currant, a caper) to about a metre (a large pumpkin).
 PLAUSIBLE_EXTENT_MM = (3.0, 1500.0)
+
+#: The sizes a product in a CT or MRI volume can have, as its largest extent
+#: (mm) and its enclosed volume (mL): narrower than :data:`PLAUSIBLE_EXTENT_MM`,
+#: because a volume's voxel size is easily wrong by a factor (a TIFF read at
+#: 1 mm voxels, micrometres taken for millimetres) and the product's size then
+#: is the only sign of it.
+PRODUCT_EXTENT_MM = (10.0, 600.0)
+PRODUCT_VOLUME_ML = (1.0, 10_000.0)
 
 #: Units a scan is likely to be in when its extent is out of range, with the
 #: factor that converts them to millimetres.
@@ -178,3 +186,25 @@ def read_scan(path, *, scale: float = 1.0) -> Scan:
     mesh = read_mesh(path)
     units = check_size(mesh.vertices, name=str(path), scale=scale)
     return Scan(scaled(mesh, scale), units)
+
+
+def plausible_voxel_factors(extent_mm: float, volume_mm3: float) -> tuple[float, float]:
+    """The range of factors on a voxel size that make a product of a fruit's size.
+
+    A product ``extent_mm`` across holding ``volume_mm3``, measured with a
+    voxel size ``s``, is a fruit's size (:data:`PRODUCT_EXTENT_MM`,
+    :data:`PRODUCT_VOLUME_ML`) with a voxel size ``f * s`` for ``f`` in the
+    returned range; it is empty (low > high) when no factor does (a shape no
+    fruit has, such as a thin sheet).
+
+    Examples
+    --------
+    >>> lo, hi = plausible_voxel_factors(200.0, 2_806_000.0)  # a ball read at 1 mm voxels, not 0.4
+    >>> bool(lo <= 0.4 <= hi), round(lo, 3), round(hi, 3)
+    (True, 0.071, 1.517)
+    """
+    (lo, hi), (vlo, vhi) = PRODUCT_EXTENT_MM, PRODUCT_VOLUME_ML
+    if not (extent_mm > 0 and volume_mm3 > 0):
+        return float("inf"), 0.0
+    return (max(lo / extent_mm, (vlo * 1000.0 / volume_mm3) ** (1 / 3)),
+            min(hi / extent_mm, (vhi * 1000.0 / volume_mm3) ** (1 / 3)))
