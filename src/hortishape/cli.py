@@ -37,6 +37,8 @@ class _Formatter(argparse.RawDescriptionHelpFormatter):
 
 def _describe(item) -> str:
     """What a plain progress line says of a finished item of a batch."""
+    if isinstance(item, list):  # the products of one volume
+        return ";".join(_describe(x) for x in item)
     if isinstance(item, tuple) and item and isinstance(item[0], str):  # (name, ...) of a synthetic scan
         return f" {item[0]}"
     name = getattr(item, "name", None)
@@ -270,8 +272,14 @@ def _add_extract(sub) -> None:
     p.add_argument("--keep-support", action="store_true",
                    help="do not look for a support or scanner bed touching the product")
     p.add_argument("--spacing", type=_positive_float, nargs=3, default=None, metavar=("SX", "SY", "SZ"),
-                   help="voxel size along x, y, z in mm, in place of what the file says; needed for TIFF, "
-                        "which stores none (default: the file's; 1 mm with a warning for TIFF)")
+                   help="voxel size along x, y, z in mm, in place of what the file says; needed for a TIFF stack "
+                        "without one in its ImageJ/OME metadata or a scanner log beside it (SkyScan .log, Nikon "
+                        ".xtekct) (default: the file's)")
+    p.add_argument("--split", action="store_true",
+                   help="each VOLUME holds several products (a tray of fruit): extract every one as "
+                        "DIR/<stem>_1.ply, <stem>_2.ply, ... in order of position (rows along y, then x); "
+                        "products touching each other are parted, a piece touching the volume's edge or too "
+                        "small to be a product is left out and said so, a tray is dropped")
     p.add_argument("--no-picture", action="store_true", help="skip the pictures")
     p.add_argument("--jobs", type=_positive_int, default=1, metavar="J",
                    help="parallel processes; each holds one volume and about 1.5 times its size")
@@ -291,7 +299,7 @@ def _run_extract(args) -> int:
     results = extract_files(
         volumes, args.out, level=args.level, smoothing=args.smoothing,
         target_vertices=args.target_vertices, remove_support=not args.keep_support,
-        picture=not args.no_picture, n_jobs=args.jobs, strict=args.strict, spacing=args.spacing,
+        picture=not args.no_picture, n_jobs=args.jobs, strict=args.strict, spacing=args.spacing, split=args.split,
         progress=_progress(len(volumes), "extract", "volume"),
     )
     print(f"{'volume':<24}{'vertices':>10}{'mL':>9}{'level':>9}{'seconds':>9}  note")
@@ -305,6 +313,8 @@ def _run_extract(args) -> int:
                 print(f"hortishape: warning: {r.source}: {w}", file=sys.stderr)
         else:
             print(f"hortishape: error: {r.error}", file=sys.stderr)
+        for why in r.left_out:
+            print(f"hortishape: warning: {r.source}: left out {why}", file=sys.stderr)
     failed = sum(not r.ok for r in results)
     print(f"extracted {len(results) - failed} of {len(results)} surfaces to {args.out} "
           f"in {time.perf_counter() - start:.1f} s")
@@ -536,6 +546,9 @@ def _add_batch_options(p, folder: str) -> None:
     p.add_argument("--spacing", type=_positive_float, nargs=3, default=None, metavar=("SX", "SY", "SZ"),
                    help=f"voxel size along x, y, z in mm for the volumes in {folder}, in place of what their "
                         "files say (as 'hortishape extract --spacing')")
+    p.add_argument("--split", action="store_true",
+                   help=f"each volume in {folder} holds several products: each is a scan of its own, named "
+                        "<volume>_1, <volume>_2, ... (as 'hortishape extract --split')")
     g = p.add_argument_group(
         "clusters and caches",
         "--scheduler runs the registrations and the extraction of volumes as tasks on a Dask cluster: start "
@@ -587,7 +600,7 @@ def _run_build(args) -> int:
     result = build_model(
         args.input_dir, args.out, reference=args.reference, n_points=args.points, n_modes=args.modes,
         n_jobs=args.jobs, strict=args.strict, config=_registration_config(args), scaling=args.scaling,
-        progress=_stage_progress, scale=args.scale, landmarks=args.landmarks, spacing=args.spacing,
+        progress=_stage_progress, scale=args.scale, landmarks=args.landmarks, spacing=args.spacing, split=args.split,
         scheduler=args.scheduler, cache=args.cache,
     )
     _print_build(result)
@@ -622,6 +635,7 @@ def _run_update(args) -> int:
     result = update_model(
         args.model_dir, args.input_dir, args.out, n_jobs=args.jobs, strict=args.strict,
         config=_registration_config(args), progress=_stage_progress, scale=args.scale, spacing=args.spacing,
+        split=args.split,
         scheduler=args.scheduler, cache=args.cache,
     )
     added = [r for r in result.second_pass if r.ok]

@@ -116,8 +116,11 @@ __all__ = [
     "decimate",
     "extract_file",
     "extract_files",
+    "extract_products",
     "extract_surface",
     "find_volumes",
+    "split_products",
+    "Split",
     "intensity_levels",
     "is_volume_source",
     "render_extraction",
@@ -2363,6 +2366,301 @@ def _draw_extraction(slices: _ExtractionSlices, extraction: Extraction, target: 
 
 
 # --------------------------------------------------------------------------
+# Several products in one volume
+# --------------------------------------------------------------------------
+
+#: Radius (mm) of the opening that takes thin things (a tray, a plate, stalks)
+#: off the products before they are told apart: less than half the thickness
+#: of a product, more than half that of a tray.
+SPLIT_OPENING_MM = 3.0
+#: Two touching pieces are one product when the distance map's pass between
+#: them is at least this share of the lower of their two peaks (the neck of a
+#: pear: about 0.75; two apples side by side: their contact, about 0.1-0.4)...
+SPLIT_SADDLE_SHARE = 0.6
+#: ... and the lower peak is at least this share of the higher (a plate
+#: thicker than the opening is not merged into the fruit standing on it).
+SPLIT_PEAK_SHARE = 0.3
+#: A piece holding less than this share of the largest product's voxels is
+#: not a product (a broken-off stalk, a label, a speck).
+SPLIT_MIN_SHARE = 0.1
+#: Voxels added around the products' bounding boxes when they are cut out.
+SPLIT_MARGIN_VOXELS = 4
+#: Volumes with more voxels than this are told apart on a grid twice as coarse.
+SPLIT_COARSE_VOXELS = 40_000_000
+
+
+@dataclass(frozen=True)
+class Split:
+    """The products found in one volume (:func:`split_products`).
+
+    Attributes
+    ----------
+    products : tuple of Volume
+        One volume per product, in order of position (rows along y, then x,
+        in world coordinates): the product's bounding box with a margin, the
+        other products' voxels set to the background. Extract each with
+        :func:`extract_surface`.
+    centres : (k, 3) float64 ndarray
+        World position (mm) of each product's centre of mass.
+    left_out : tuple of str
+        What was left out, and why, one sentence each: a piece touching the
+        volume's edge (cut off), a piece too small to be a product.
+    level : float
+        The level the products were told apart at.
+    """
+
+    products: tuple
+    centres: np.ndarray
+    left_out: tuple
+    level: float
+
+
+def _pass_values(labels: np.ndarray, dist: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pairs of touching regions and the highest distance at which they touch (their pass)."""
+    keys, values = [], []
+    for axis in range(3):
+        a = np.moveaxis(labels, axis, 0)
+        d = np.moveaxis(dist, axis, 0)
+        la, lb = a[:-1], a[1:]
+        touch = (la != lb) & (la > 0) & (lb > 0)
+        if not touch.any():
+            continue
+        x, y = la[touch].astype(np.int64), lb[touch].astype(np.int64)
+        v = np.minimum(d[:-1][touch], d[1:][touch])
+        keys.append(np.minimum(x, y) * (n + 1) + np.maximum(x, y))
+        values.append(v)
+    if not keys:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
+    key, val = np.concatenate(keys), np.concatenate(values)
+    order = np.lexsort((-val, key))
+    key, val = key[order], val[order]
+    first = np.r_[True, key[1:] != key[:-1]]
+    key, val = key[first], val[first]
+    return key // (n + 1), key % (n + 1), val
+
+
+def _merge_regions(labels: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """Regions of a watershed joined where the distance map's pass between them is high: one product each."""
+    from scipy import ndimage
+
+    n = int(labels.max())
+    if n <= 1:
+        return labels
+    peaks = np.zeros(n + 1)
+    peaks[1:] = ndimage.maximum(dist, labels, index=np.arange(1, n + 1))
+    a, b, val = _pass_values(labels, dist, n)
+    parent = np.arange(n + 1)
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    for k in np.argsort(-val, kind="stable"):  # over the pairs of regions, a few dozen
+        ra, rb = root(int(a[k])), root(int(b[k]))
+        if ra == rb:
+            continue
+        low, high = sorted((peaks[ra], peaks[rb]))
+        if val[k] >= SPLIT_SADDLE_SHARE * low and low >= SPLIT_PEAK_SHARE * high:
+            parent[rb] = ra
+            peaks[ra] = high
+    roots = np.array([root(i) for i in range(n + 1)])
+    _, relabel = np.unique(roots, return_inverse=True)
+    return relabel[labels]
+
+
+def _attach_small(regions: np.ndarray, dist: np.ndarray, n: int, counts: np.ndarray, edge: np.ndarray,
+                  largest: int) -> np.ndarray:
+    """A piece too small to be a product that touches one is part of it (a pepper's thick stalk)."""
+    small = (counts < SPLIT_MIN_SHARE * largest) & ~edge
+    small[0] = False
+    if not small.any():
+        return regions
+    a, b, passes = _pass_values(regions, dist, n)
+    target = np.arange(n + 1)
+    best = np.full(n + 1, -1.0)
+    for x, y, v in zip(a, b, passes):  # over the pairs of touching regions, a few dozen
+        for piece, other in ((x, y), (y, x)):
+            if small[piece] and not small[other] and not edge[other] and v > best[piece]:
+                target[piece], best[piece] = other, v
+    return target[regions]
+
+
+def _nearest_core(regions: np.ndarray, dist: np.ndarray, n: int, spacing: np.ndarray, where: np.ndarray) -> np.ndarray:
+    """Each voxel of ``where`` given to the product whose core is nearest.
+
+    The cores are the products' voxels deeper than their deepest contact
+    (one depth for all), so the boundary between two touching products is
+    where they are equally deep: through their contact, as their surfaces
+    meet. (A watershed on the distance map puts it anywhere across the
+    plateau where they are fused.)
+    """
+    from scipy import ndimage
+
+    _, _, passes = _pass_values(regions, dist, n)
+    depth = float(passes.max()) + float(spacing.max()) if passes.size else 0.0
+    peaks = np.zeros(n + 1)
+    peaks[1:] = ndimage.maximum(dist, regions, index=np.arange(1, n + 1))
+    # a product no deeper than that (small beside a large one): its own deepest part
+    depths = np.where(peaks > depth, depth, 0.8 * peaks)
+    cores = np.where(dist > depths[regions], regions, 0)
+    cores[regions == 0] = 0
+    _, nearest = ndimage.distance_transform_edt(cores == 0, sampling=spacing, return_indices=True)
+    grown = cores[tuple(nearest)]
+    grown[~where] = 0
+    return grown
+
+
+def _reading_order(centres: np.ndarray, sizes: np.ndarray) -> np.ndarray:
+    """Rows along y (a new row where y jumps by more than half a product), then along x."""
+    if len(centres) == 0:
+        return np.zeros(0, np.int64)
+    by_y = np.argsort(centres[:, 1], kind="stable")
+    step = 0.5 * float(np.median(sizes))
+    row = np.r_[0, np.cumsum(np.diff(centres[by_y, 1]) > step)]
+    rows = np.empty(len(centres), np.int64)
+    rows[by_y] = row
+    return np.lexsort((centres[:, 0], rows))
+
+
+def split_products(volume, *, level: float | None = None, name: str = "volume") -> Split:
+    """Find every product in a volume of several (a tray of fruit) and cut each out.
+
+    What is above the level (:func:`intensity_levels`), with its enclosed
+    cavities, is opened by a ball of :data:`SPLIT_OPENING_MM` (a tray or plate
+    and stalks come off). Its distance map's peaks seed a watershed; regions
+    whose pass is high against their peaks (:data:`SPLIT_SADDLE_SHARE`,
+    :data:`SPLIT_PEAK_SHARE`) are one product, so touching fruit come apart
+    at their contact and a pear at its neck does not. A piece that touches
+    the volume's edge or holds less than :data:`SPLIT_MIN_SHARE` of the
+    largest product's voxels is left out, and said so. Each product is cut
+    out with a margin, the other products' voxels (and their partial-volume
+    rims) set to the background; a tray or stalk in its box stays, for
+    :func:`extract_surface` to drop as a support or keep as the product's own.
+
+    Parameters
+    ----------
+    volume : Volume or (nx, ny, nz) array_like
+    level : float, optional
+        Voxels above it are product; default as :func:`extract_surface`.
+    name : str, default: "volume"
+        What to call the volume in messages.
+
+    Returns
+    -------
+    Split
+
+    Raises
+    ------
+    VolumeError
+        No product in the volume (every piece touches its edge or none is
+        above the level).
+
+    Examples
+    --------
+    >>> x, y, z = np.mgrid[:60, :36, :36] - np.array([[[[0]]], [[[17.5]]], [[[17.5]]]])
+    >>> balls = [np.sqrt((x - c) ** 2 + y**2 + z**2) for c in (17.5, 41.0)]  # radius 12, touching
+    >>> data = (1000 * np.clip(12.5 - np.minimum(*balls), 0, 1)).astype(np.float32)
+    >>> split = split_products(data)
+    >>> len(split.products), [round(float(c)) for c in split.centres[:, 0]]
+    (2, [18, 41])
+    """
+    from scipy import ndimage
+    from skimage.segmentation import watershed
+
+    vol = _as_volume(volume)
+    levels = intensity_levels(vol, level=level, name=name)
+    factor = 2 if int(np.prod(vol.shape)) > SPLIT_COARSE_VOXELS else 1
+    data = vol.data[::factor, ::factor, ::factor]
+    spacing = vol.spacing * factor
+    solid = ndimage.binary_fill_holes(data > levels.level)
+    dist = ndimage.distance_transform_edt(solid, sampling=spacing).astype(np.float32)
+    core = dist > SPLIT_OPENING_MM
+    opened = ndimage.distance_transform_edt(~core, sampling=spacing) <= SPLIT_OPENING_MM
+    opened &= solid
+    del core
+    if not opened.any():
+        raise VolumeError(f"{name}: nothing above the level {levels.level:.6g} is thicker than "
+                          f"{2 * SPLIT_OPENING_MM:g} mm: no product in it")
+    # seeds: the distance map's peaks, one per plateau
+    size = max(3, int(round(2 * SPLIT_OPENING_MM / spacing.min())) | 1)
+    peaks = (dist == ndimage.maximum_filter(dist, size=size)) & opened
+    seeds, _ = ndimage.label(peaks, structure=np.ones((3, 3, 3)))
+    regions = watershed(-dist, seeds, mask=opened)
+    del seeds, peaks
+    regions = _merge_regions(regions, dist)
+    n = int(regions.max())
+    counts = np.bincount(regions.ravel(), minlength=n + 1)
+    edge = np.zeros(n + 1, bool)
+    for axis in range(3):
+        for end in (0, -1):
+            edge[np.unique(np.take(regions, end, axis=axis))] = True
+    largest = max((counts[i] for i in range(1, n + 1) if not edge[i]), default=0)
+    if largest == 0:
+        raise VolumeError(f"{name}: every piece above the level touches the volume's edge: no whole product in it")
+    # thin things: a stalk goes with the product it hangs from, a tray or plate reaching the edge with none
+    thin, n_thin = ndimage.label(solid & ~opened, structure=np.ones((3, 3, 3)))
+    thin_edge = np.zeros(n_thin + 1, bool)
+    for axis in range(3):
+        for end in (0, -1):
+            thin_edge[np.unique(np.take(thin, end, axis=axis))] = True
+    thin_edge[0] = False
+    loose = thin_edge[thin]
+    del thin
+    regions = _attach_small(regions, dist, n, counts, edge, largest)
+    counts = np.bincount(regions.ravel(), minlength=n + 1)
+    grown = _nearest_core(regions, dist, n, spacing, solid & ~loose)
+    voxel_ml = float(np.prod(spacing)) / 1000.0
+    keep, left_out = [], []
+    boxes = ndimage.find_objects(grown)
+    for i in range(1, n + 1):
+        if counts[i] == 0:
+            continue  # part of a product now
+        box = boxes[i - 1]
+        where = vol.index_to_world([[factor * (s.start + s.stop - 1) / 2 for s in box]])[0]
+        at = ", ".join(f"{c:.0f}" for c in where)
+        if edge[i]:
+            left_out.append(f"a piece of {counts[i] * voxel_ml:.3g} mL at ({at}) mm touches the volume's edge "
+                            "(cut off, or a tray or holder)")
+        elif counts[i] < SPLIT_MIN_SHARE * largest:
+            left_out.append(f"a piece of {counts[i] * voxel_ml:.3g} mL at ({at}) mm is too small to be a product "
+                            f"(under {SPLIT_MIN_SHARE:.0%} of the largest)")
+        else:
+            keep.append(i)
+    centres = np.array(ndimage.center_of_mass(opened, regions, keep)) * factor if keep else np.zeros((0, 3))
+    centres = vol.index_to_world(centres) if len(keep) else centres
+    sizes = np.cbrt(counts[keep] * np.prod(spacing))
+    order = _reading_order(centres, sizes)
+    keep = [keep[k] for k in order]
+    centres = centres[order]
+    # the others' voxels and their rims (below the level, beside them) go to the background; a tray stays,
+    # for extract_surface to drop as a support (the surface meets it where the product stands on it)
+    masked = np.isin(grown, keep + [i for i in range(1, n + 1) if edge[i]])
+    rim = ndimage.binary_dilation(masked, iterations=2) & ~solid
+    background = levels.background
+    products = []
+    for i in keep:
+        box = boxes[i - 1]
+        lo = np.array([max(0, factor * s.start - SPLIT_MARGIN_VOXELS) for s in box])
+        hi = np.array([min(vol.shape[a], factor * s.stop + SPLIT_MARGIN_VOXELS) for a, s in enumerate(box)])
+        crop = np.array(vol.data[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]])
+        sub = tuple(slice(a // factor, -(-b // factor)) for a, b in zip(lo, hi))
+        own = grown[sub] == i
+        others = (masked[sub] & ~own) | (rim[sub] & ~ndimage.binary_dilation(own, iterations=3))
+        if factor > 1:
+            others = np.repeat(np.repeat(np.repeat(others, 2, 0), 2, 1), 2, 2)
+            off = lo - factor * np.array([s.start for s in sub])
+            others = others[off[0]:off[0] + crop.shape[0], off[1]:off[1] + crop.shape[1],
+                            off[2]:off[2] + crop.shape[2]]
+        fill = np.array(background).astype(crop.dtype) if crop.dtype.kind != "f" else background
+        crop[others] = fill
+        products.append(Volume(crop, vol.spacing, vol.index_to_world([lo])[0], vol.direction,
+                               spacing_source=vol.spacing_source))
+    return Split(tuple(products), centres, tuple(left_out), float(levels.level))
+
+
+# --------------------------------------------------------------------------
 # Files and batches
 # --------------------------------------------------------------------------
 
@@ -2480,6 +2778,9 @@ class ExtractResult:
     n_filled_voxels, n_support_voxels : int
     warnings : tuple of str
         What a person should look at (:attr:`Extraction.warnings`).
+    left_out : tuple of str
+        With ``split``, on a volume's first product: what was left out of
+        the volume, and why (:attr:`Split.left_out`).
     """
 
     name: str
@@ -2498,6 +2799,7 @@ class ExtractResult:
     n_filled_voxels: int = 0
     n_support_voxels: int = 0
     warnings: tuple = ()
+    left_out: tuple = ()
 
 
 def _source_digest(source) -> str:
@@ -2523,6 +2825,89 @@ def _settings(options: dict) -> str:
 _CONSTANT_PREFIXES = ("GAPS_", "ENCLOSED_", "SUPPORT_", "OUTER_", "PIT_", "SLICE_", "ISO_")
 
 
+def _failure(stem: str, source, exc: BaseException) -> ExtractResult:
+    """What a failed volume reports: one line naming it (a bug too, so that a batch goes on)."""
+    if isinstance(exc, HortishapeError):
+        msg = str(exc)
+        if not msg.startswith(str(source)):
+            msg = f"{source}: {msg}"
+    elif isinstance(exc, MemoryError):
+        msg = f"{source}: not enough memory to extract this volume"
+    elif isinstance(exc, OSError):
+        msg = f"{source}: {exc.strerror or exc}"
+    else:
+        where = traceback.extract_tb(exc.__traceback__)[-1]
+        msg = (f"{source}: internal error {type(exc).__name__}: {exc} "
+               f"(at {Path(where.filename).name}:{where.lineno}; please report it)")
+    return ExtractResult(name=stem, source=str(source), ok=False, error=msg)
+
+
+def _done_before(log_path: Path, digest: str, fingerprint: str, needed: Sequence[Path]) -> dict | None:
+    """The log of an earlier run of the same bytes and options whose outputs are all there, or None."""
+    if not (log_path.is_file() and all(p.is_file() for p in needed)):
+        return None
+    try:
+        log = json.loads(log_path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return log if log.get("source_sha256") == digest and log.get("fingerprint") == fingerprint else None
+
+
+def _extract_and_write(vol: Volume, source, stem: str, out: Path, options: dict, picture: bool,
+                       extra: dict) -> tuple[dict, Path, Path | None]:
+    """Extract one product's surface from ``vol`` and write its PLY, picture and, last, its JSON log."""
+    ply, log_path, png = out / f"{stem}.ply", out / f"{stem}.json", out / f"{stem}.png"
+    start = time.perf_counter()
+    surface_options = {k: options[k] for k in ("level", "smoothing", "target_vertices", "remove_support",
+                                               "support_radius")}
+    with warnings.catch_warnings():
+        # said in the log and the result instead (batches run in other processes)
+        warnings.simplefilter("ignore", ExtractionWarning)
+        ext = extract_surface(vol, name=str(source), **surface_options)
+    units = {**_check_extent(ext.mesh.vertices, vol.spacing, source, ext.volume).as_log(),
+             "spacing_mm": vol.spacing.tolist(), "spacing_source": vol.spacing_source}
+    seconds = time.perf_counter() - start
+    slices = _ExtractionSlices.of(vol, ext) if picture else None
+    write_mesh(ply, ext.mesh)
+    if picture:
+        _draw_extraction(slices, ext, png, title=stem, width=_PICTURE_SIZE[0], height=_PICTURE_SIZE[1],
+                         backend="auto")
+    log = {
+        "source": str(source),
+        **extra,
+        "options": options,
+        "units": units,
+        "seconds": seconds,
+        "levels": asdict(ext.levels),
+        "level_choice": ext.levels.explain(),
+        "gap_mm": ext.gap_mm,
+        "genus": ext.genus,
+        "attempts": list(ext.attempts),
+        "warnings": list(ext.warnings),
+        "bounds_index_xyz": ext.bounds.tolist(),
+        "n_vertices": ext.mesh.n_vertices,
+        "n_marching_cubes_vertices": ext.n_marching_cubes_vertices,
+        "volume_mm3": ext.volume,
+        "n_object_voxels": ext.n_object_voxels,
+        "n_filled_voxels": ext.n_filled_voxels,
+        "n_support_voxels": ext.n_support_voxels,
+    }
+    # the log last: with the right fingerprint it marks the product done
+    with atomic_path(log_path, VolumeError) as tmp:
+        tmp.write_text(json.dumps(log, indent=1), encoding="utf-8")
+    return log, ply, png if picture else None
+
+
+def _options(level, smoothing, target_vertices, remove_support, support_radius, spacing, split=False) -> dict:
+    options = {"level": level, "smoothing": smoothing, "target_vertices": target_vertices,
+               "remove_support": remove_support, "support_radius": support_radius}
+    if spacing is not None:  # absent otherwise, so earlier runs' fingerprints still hold
+        options["spacing"] = [float(x) for x in spacing]
+    if split:
+        options["split"] = True
+    return options
+
+
 def extract_file(source, out_dir, *, level: float | None = None, smoothing: int = 10,
                  target_vertices: int | None = None, remove_support: bool = True,
                  support_radius: float = 2.0, picture: bool = True,
@@ -2530,15 +2915,17 @@ def extract_file(source, out_dir, *, level: float | None = None, smoothing: int 
     """Extract the surface of one volume file into ``out_dir``, unless already done.
 
     Writes ``out_dir/<stem>.ply`` (the surface, mm), ``out_dir/<stem>.json``
-    (levels, counts, seconds, and a fingerprint of the source's bytes and the
-    options) and, with ``picture``, ``out_dir/<stem>.png``
-    (:func:`render_extraction`). When the JSON shows that the same file was
-    extracted with the same options, nothing is redone.
+    (levels, counts, seconds, where the voxel size came from, and a
+    fingerprint of the source's bytes and the options) and, with
+    ``picture``, ``out_dir/<stem>.png`` (:func:`render_extraction`). When the
+    JSON shows that the same file was extracted with the same options,
+    nothing is redone.
 
     Parameters
     ----------
-    source : path
-        A volume file or a DICOM / TIFF-slice folder (:func:`hortishape.io.read_volume`).
+    source : path or VolumeSource
+        A volume file, a DICOM / TIFF-slice folder (:func:`hortishape.io.read_volume`)
+        or one volume :func:`hortishape.io.find_sources` found.
     out_dir : path
         Created if needed.
     level, smoothing, target_vertices, remove_support, support_radius
@@ -2546,8 +2933,9 @@ def extract_file(source, out_dir, *, level: float | None = None, smoothing: int 
     picture : bool, default: True
         Also write the picture.
     spacing : (3,) sequence of float, optional
-        Voxel size along x, y, z (mm), in place of what the file says (TIFF
-        stores none: 1 mm is assumed with a warning).
+        Voxel size along x, y, z (mm), in place of what the file says (a
+        TIFF stack without a voxel size in its metadata or a scanner log
+        beside it needs it).
 
     Returns
     -------
@@ -2562,83 +2950,95 @@ def extract_file(source, out_dir, *, level: float | None = None, smoothing: int 
     location = source.path if isinstance(source, VolumeSource) else source
     out = Path(out_dir)
     stem = volume_stem(source)
-    options = {"level": level, "smoothing": smoothing, "target_vertices": target_vertices,
-               "remove_support": remove_support, "support_radius": support_radius}
-    if spacing is not None:  # absent otherwise, so earlier runs' fingerprints still hold
-        options["spacing"] = [float(x) for x in spacing]
-    ply, log_path, png = out / f"{stem}.ply", out / f"{stem}.json", out / f"{stem}.png"
+    options = _options(level, smoothing, target_vertices, remove_support, support_radius, spacing)
+    ply, png = out / f"{stem}.ply", out / f"{stem}.png"
     try:
         if not location.exists():
             raise VolumeError(f"{source}: no such file or folder")
         digest = _source_digest(source)
         fingerprint = _settings(options)
-        if ply.is_file() and log_path.is_file() and (png.is_file() or not picture):
-            try:
-                log = json.loads(log_path.read_text(encoding="utf-8"))
-            except (OSError, ValueError):
-                log = {}
-            if log.get("source_sha256") == digest and log.get("fingerprint") == fingerprint:
-                return _result(stem, source, log, ply, png if png.is_file() else None, resumed=True)
+        log = _done_before(out / f"{stem}.json", digest, fingerprint, [ply] + ([png] if picture else []))
+        if log is not None:
+            return _result(stem, source, log, ply, png if png.is_file() else None, resumed=True)
         out.mkdir(parents=True, exist_ok=True)
-        start = time.perf_counter()
         vol = read_volume(source, spacing=spacing)
-        with warnings.catch_warnings():
-            # said in the log and the result instead (batches run in other processes)
-            warnings.simplefilter("ignore", ExtractionWarning)
-            ext = extract_surface(vol, level=level, smoothing=smoothing, target_vertices=target_vertices,
-                                  remove_support=remove_support, support_radius=support_radius,
-                                  name=str(source))
-        units = {**_check_extent(ext.mesh.vertices, vol.spacing, source, ext.volume).as_log(), "spacing_mm": vol.spacing.tolist(),
-                 "spacing_source": vol.spacing_source}
-        seconds = time.perf_counter() - start
-        slices = _ExtractionSlices.of(vol, ext) if picture else None
-        del vol  # before the picture's libraries arrive
-        write_mesh(ply, ext.mesh)
-        if picture:
-            _draw_extraction(slices, ext, png, title=stem, width=_PICTURE_SIZE[0], height=_PICTURE_SIZE[1],
-                             backend="auto")
-        log = {
-            "source": str(source),
-            "source_sha256": digest,
-            "fingerprint": fingerprint,
-            "options": options,
-            "units": units,
-            "seconds": seconds,
-            "levels": asdict(ext.levels),
-            "level_choice": ext.levels.explain(),
-            "gap_mm": ext.gap_mm,
-            "genus": ext.genus,
-            "attempts": list(ext.attempts),
-            "warnings": list(ext.warnings),
-            "bounds_index_xyz": ext.bounds.tolist(),
-            "n_vertices": ext.mesh.n_vertices,
-            "n_marching_cubes_vertices": ext.n_marching_cubes_vertices,
-            "volume_mm3": ext.volume,
-            "n_object_voxels": ext.n_object_voxels,
-            "n_filled_voxels": ext.n_filled_voxels,
-            "n_support_voxels": ext.n_support_voxels,
-        }
-        # the log last: with the right fingerprint it marks the volume done
-        with atomic_path(log_path, VolumeError) as tmp:
-            tmp.write_text(json.dumps(log, indent=1), encoding="utf-8")
-        return _result(stem, source, log, ply, png if picture else None, resumed=False)
-    except HortishapeError as exc:
-        msg = str(exc)
-        if not msg.startswith(str(source)):
-            msg = f"{source}: {msg}"
-        return ExtractResult(name=stem, source=str(source), ok=False, error=msg)
-    except MemoryError:
-        return ExtractResult(name=stem, source=str(source), ok=False,
-                             error=f"{source}: not enough memory to extract this volume")
-    except OSError as exc:
-        return ExtractResult(name=stem, source=str(source), ok=False, error=f"{source}: {exc.strerror or exc}")
-    except Exception as exc:  # a bug must not lose the rest of the batch; say what it was
-        where = traceback.extract_tb(exc.__traceback__)[-1]
-        return ExtractResult(
-            name=stem, source=str(source), ok=False,
-            error=f"{source}: internal error {type(exc).__name__}: {exc} "
-                  f"(at {Path(where.filename).name}:{where.lineno}; please report it)",
-        )
+        log, ply, png = _extract_and_write(vol, source, stem, out, options, picture,
+                                           {"source_sha256": digest, "fingerprint": fingerprint})
+        return _result(stem, source, log, ply, png, resumed=False)
+    except Exception as exc:  # noqa: BLE001 - a bad volume or a bug must not lose the rest of the batch
+        return _failure(stem, source, exc)
+
+
+def extract_products(source, out_dir, *, level: float | None = None, smoothing: int = 10,
+                     target_vertices: int | None = None, remove_support: bool = True,
+                     support_radius: float = 2.0, picture: bool = True,
+                     spacing: Sequence[float] | None = None) -> list[ExtractResult]:
+    """Extract every product in one volume of several (a tray of fruit) into ``out_dir``, unless done.
+
+    The products are found and cut out by :func:`split_products` and each
+    extracted as :func:`extract_file` extracts a volume, into
+    ``out_dir/<stem>_1.ply``, ``<stem>_2.ply``, ... (with their JSON and
+    pictures) in the order of their positions (rows along y, then x).
+    ``out_dir/<stem>.split.json`` says how many were found, where, and what
+    was left out and why (a piece touching the volume's edge, too small to
+    be a product); with the same bytes and options nothing is redone.
+
+    Parameters
+    ----------
+    source, out_dir, level, smoothing, target_vertices, remove_support, support_radius, picture, spacing
+        As :func:`extract_file`.
+
+    Returns
+    -------
+    list of ExtractResult
+        One per product, in order; the first carries ``left_out``. Never
+        raises for a bad volume: one result with ``ok`` False says why.
+    """
+    source = source if isinstance(source, VolumeSource) else Path(source)
+    location = source.path if isinstance(source, VolumeSource) else source
+    out = Path(out_dir)
+    stem = volume_stem(source)
+    options = _options(level, smoothing, target_vertices, remove_support, support_radius, spacing, split=True)
+    summary_path = out / f"{stem}.split.json"
+    try:
+        if not location.exists():
+            raise VolumeError(f"{source}: no such file or folder")
+        digest = _source_digest(source)
+        fingerprint = _settings(options)
+        summary = _done_before(summary_path, digest, fingerprint, [])
+        if summary is not None:
+            names = summary["products"]
+            logs = [_done_before(out / f"{n}.json", digest, fingerprint,
+                                 [out / f"{n}.ply"] + ([out / f"{n}.png"] if picture else [])) for n in names]
+            if all(log is not None for log in logs):
+                return [replace(_result(n, source, log, out / f"{n}.ply",
+                                        out / f"{n}.png" if (out / f"{n}.png").is_file() else None, resumed=True),
+                                left_out=tuple(summary["left_out"]) if k == 0 else ())
+                        for k, (n, log) in enumerate(zip(names, logs))]
+        out.mkdir(parents=True, exist_ok=True)
+        vol = read_volume(source, spacing=spacing)
+        split = split_products(vol, level=level, name=str(source))
+        del vol
+        names = [f"{stem}_{k + 1}" for k in range(len(split.products))]
+        results = []
+        for k, (name, product) in enumerate(zip(names, split.products)):
+            extra = {"source_sha256": digest, "fingerprint": fingerprint, "split_from": stem, "product": k + 1,
+                     "centre_mm": split.centres[k].tolist()}
+            try:
+                log, ply, png = _extract_and_write(product, source, name, out, options, picture, extra)
+                results.append(_result(name, source, log, ply, png, resumed=False))
+            except Exception as exc:  # noqa: BLE001 - one product's failure does not lose the others
+                results.append(_failure(name, f"{source} (product {k + 1})", exc))
+        with atomic_path(summary_path, VolumeError) as tmp:
+            tmp.write_text(json.dumps({"source": str(source), "source_sha256": digest, "fingerprint": fingerprint,
+                                       "products": names, "centres_mm": split.centres.tolist(),
+                                       "left_out": list(split.left_out), "level": split.level}, indent=1),
+                           encoding="utf-8")
+        if results:
+            results[0] = replace(results[0], left_out=split.left_out)
+        return results
+    except Exception as exc:  # noqa: BLE001
+        return [_failure(stem, source, exc)]
 
 
 def _check_extent(vertices: np.ndarray, spacing: np.ndarray, source, volume_mm3: float) -> SizeCheck:
@@ -2682,9 +3082,18 @@ def _result(stem: str, source: Path, log: dict, ply: Path, png: Path | None, *, 
     )
 
 
-def _extract_job(job) -> ExtractResult:
+def _extract_job(job) -> ExtractResult | list[ExtractResult]:
     source, out_dir, options = job
+    options = dict(options)
+    if options.pop("split", False):
+        return extract_products(source, out_dir, **options)
     return extract_file(source, out_dir, **options)
+
+
+def _raise_failed_any(results) -> None:
+    """``stop`` with ``strict`` for results that may be lists (a split volume's products)."""
+    for r in results if isinstance(results, list) else [results]:
+        raise_failed(r)
 
 
 def extract_files(
@@ -2702,6 +3111,7 @@ def extract_files(
     progress: Progress | None = None,
     spacing: Sequence[float] | None = None,
     scheduler=None,
+    split: bool = False,
 ) -> list[ExtractResult]:
     """Extract the surface of every volume into ``out_dir`` (see :func:`extract_file`).
 
@@ -2723,11 +3133,15 @@ def extract_files(
     scheduler : str or distributed.Client, optional
         Run the extractions as tasks on this Dask cluster; its workers read
         the volumes and write ``out_dir`` themselves, so they must see both.
+    split : bool, default: False
+        Each volume holds several products: extract every one
+        (:func:`extract_products`).
 
     Returns
     -------
     list of ExtractResult
-        In the order of ``sources``.
+        In the order of ``sources`` (with ``split``, each volume's products
+        in their order).
 
     Raises
     ------
@@ -2747,12 +3161,13 @@ def extract_files(
     out.mkdir(parents=True, exist_ok=True)
     options = {"level": level, "smoothing": smoothing, "target_vertices": target_vertices,
                "remove_support": remove_support, "support_radius": support_radius, "picture": picture,
-               "spacing": spacing}
+               "spacing": spacing, "split": split}
     def where(q):  # a worker has its own working folder
         if isinstance(q, VolumeSource):
             return q.resolved() if scheduler is not None else q
         return str(q.resolve()) if scheduler is not None else str(q)
 
     jobs = [(where(p), str(out.resolve()) if scheduler is not None else str(out), options) for p in paths]
-    return run_jobs(_extract_job, jobs, n_jobs=n_jobs, progress=progress, stop=raise_failed if strict else None,
-                    scheduler=scheduler)
+    results = run_jobs(_extract_job, jobs, n_jobs=n_jobs, progress=progress,
+                       stop=_raise_failed_any if strict else None, scheduler=scheduler)
+    return [r for item in results for r in (item if isinstance(item, list) else [item])]

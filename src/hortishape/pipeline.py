@@ -140,8 +140,8 @@ def find_meshes(folder) -> list[Path]:
 
 def find_scans(folder, out_dir, *, n_jobs: int | None = None, strict: bool = False,
                progress: Callable[[int, str], Progress] | None = None,
-               spacing: Sequence[float] | None = None,
-               scheduler=None) -> tuple[list[Path], list[tuple[str, str]], list[tuple[str, str]]]:
+               spacing: Sequence[float] | None = None, scheduler=None,
+               split: bool = False) -> tuple[list[Path], list[tuple[str, str]], list[tuple[str, str]]]:
     """The scans in ``folder``: its mesh files and the surfaces of its CT and MRI volumes.
 
     What is a scan is decided by :func:`hortishape.io.find_sources`, as for
@@ -154,7 +154,9 @@ def find_scans(folder, out_dir, *, n_jobs: int | None = None, strict: bool = Fal
     ``spacing`` (mm along x, y, z) replaces the voxel size the volume files
     give (see :func:`hortishape.extract.extract_file`). With ``scheduler``
     the extractions run on that Dask cluster, whose workers must see
-    ``folder`` and ``out_dir`` (they read and write them directly).
+    ``folder`` and ``out_dir`` (they read and write them directly). With
+    ``split`` every volume holds several products, each a scan of its own
+    (:func:`hortishape.extract.extract_products`).
 
     Returns
     -------
@@ -189,7 +191,7 @@ def find_scans(folder, out_dir, *, n_jobs: int | None = None, strict: bool = Fal
     if found.volumes:
         results = extract_files(found.volumes, ModelDir(out_dir).surfaces, n_jobs=n_jobs, strict=strict,
                                 progress=_stage(progress, len(found.volumes), "extract"), spacing=spacing,
-                                scheduler=scheduler)
+                                scheduler=scheduler, split=split)
         files += [Path(r.mesh) for r in results if r.ok]
         failed = [(r.source, r.error) for r in results if not r.ok]
     return sorted(files, key=lambda p: p.name), failed, passed
@@ -696,6 +698,7 @@ def build_model(
     spacing: Sequence[float] | None = None,
     scheduler=None,
     cache=None,
+    split: bool = False,
 ) -> BuildResult:
     """Build a statistical shape model from a folder of scans (paper section 2.2.3).
 
@@ -759,6 +762,10 @@ def build_model(
     spacing : (3,) sequence of float, optional
         Voxel size in mm (x, y, z) for the volumes in ``input_dir``, in place
         of what their files say (see :func:`find_scans`).
+    split : bool, default: False
+        Every volume in ``input_dir`` holds several products (a tray): each
+        is a scan of its own, ``<volume>_1``, ``<volume>_2``, ... (see
+        :func:`find_scans`).
     scheduler : str or distributed.Client, optional
         Run the registrations (both passes and the orientation check) and the
         extraction of volumes as tasks on this Dask cluster (the address of a
@@ -784,7 +791,7 @@ def build_model(
     out = Path(out_dir)
     layout = ModelDir(out)
     files, failed, passed = find_scans(input_dir, out, n_jobs=n_jobs, strict=strict, progress=progress,
-                                       spacing=spacing, scheduler=scheduler)
+                                       spacing=spacing, scheduler=scheduler, split=split)
     checks = check_scans(files, scale=scale)
     skipped = failed + [(c.path, c.error) for c in checks if not c.ok]
     if strict and skipped:
@@ -1101,6 +1108,7 @@ def update_model(
     spacing: Sequence[float] | None = None,
     scheduler=None,
     cache=None,
+    split: bool = False,
 ) -> BuildResult:
     """Add scans to a built model, without registering the scans already in it.
 
@@ -1125,7 +1133,7 @@ def update_model(
         Folder of the new scans (meshes or volumes, as for :func:`build_model`).
     out_dir : path
         The updated model's folder: not ``model_dir``.
-    n_jobs, strict, config, progress, scale, spacing, scheduler, cache
+    n_jobs, strict, config, progress, scale, spacing, scheduler, cache, split
         As for :func:`build_model`. ``config`` should be the one the model
         was built with (default: the paper's).
 
@@ -1167,7 +1175,7 @@ def update_model(
 
     layout.root.mkdir(parents=True, exist_ok=True)
     files, failed, passed = find_scans(input_dir, layout.root, n_jobs=n_jobs, strict=strict, progress=progress,
-                                       spacing=spacing, scheduler=scheduler)
+                                       spacing=spacing, scheduler=scheduler, split=split)
     checks = check_scans(files, scale=scale)
     skipped = failed + [(c.path, c.error) for c in checks if not c.ok]
     taken = set(old_names)
