@@ -257,3 +257,44 @@ def test_update_adds_scans_without_redoing_the_model_and_equals_a_full_build(bui
     (clash / "apple_000.ply").write_bytes((Path(scans) / "apple_000.ply").read_bytes())
     with pytest.raises(HortishapeError, match="already in the model"):
         update_model(built.out_dir, clash, tmp_path / "y", config=CONFIG)
+
+
+@pytest.mark.slow
+def test_six_apples_as_extensionless_dicom_series_in_study_folders_build_the_model_of_their_mha(tmp_path, capsys):
+    """As a CT scanner exports them: one series per apple, generic folder names in two study folders, the
+    operator's name of each apple as its SeriesDescription, a localizer and a note beside them."""
+    pytest.importorskip("pydicom")
+    from scanner_files import ROOT, write_dicom_series
+
+    from hortishape.io import Volume, write_volume
+
+    pop = [synth.make_instance("apple", random_state=s, n_vertices=8000, volume=True, name=f"apple_{k}")
+           for k, s in enumerate(np.random.SeedSequence(61).spawn(6))]
+    mha, dicom = tmp_path / "mha", tmp_path / "dicom"
+    mha.mkdir()
+    for k, inst in enumerate(pop):
+        # a geometry DICOM's 16-character decimal strings hold exactly, so that both files say the same
+        vol = Volume(inst.volume.data, np.round(inst.volume.spacing, 9), np.round(inst.volume.origin, 4))
+        write_volume(mha / f"{inst.name}.mha", vol)
+        study = dicom / "DICOM" / f"STU{k // 3:05d}"
+        write_dicom_series(study / f"SER{k % 3:05d}", vol.data, spacing=vol.spacing, origin=vol.origin,
+                           series_uid=ROOT + f"60.{k}", description=inst.name, number=k % 3 + 1,
+                           study_uid=ROOT + f"6.{k // 3}")
+    write_dicom_series(dicom / "DICOM" / "STU00000" / "SCOUT", pop[0].volume.data[:, :, :1],
+                       series_uid=ROOT + "60.99", description="localizer")
+    (dicom / "notes.txt").write_text("six apples, 7 December")
+    config = RegistrationConfig(n_iterations=6)
+    from_mha = build_model(mha, tmp_path / "m1", n_points=800, config=config, n_jobs=2)
+    assert main(["build", str(dicom), "--out", str(tmp_path / "m2"), "--points", "800", "--iterations", "6"]) == 0
+    out = capsys.readouterr().out
+    assert f"skipped {dicom / 'notes.txt'}: not a mesh, a volume or a DICOM file" in out
+    assert "a DICOM series of one slice (localizer)" in out
+    a, b = ShapeModel.load(from_mha.model_path), ShapeModel.load(tmp_path / "m2" / "model.h5")
+    summary = json.loads((tmp_path / "m2" / "summary.json").read_text())
+    assert summary["instances"] == list(from_mha.names) == [f"apple_{k}" for k in range(6)]
+    # the same voxels and geometry: the same surfaces, the same model
+    for name in from_mha.names:
+        np.testing.assert_array_equal(read_mesh(tmp_path / "m2" / "surfaces" / f"{name}.ply").vertices,
+                                      read_mesh(tmp_path / "m1" / "surfaces" / f"{name}.ply").vertices)
+    np.testing.assert_allclose(b.mean_, a.mean_, atol=1e-9)
+    np.testing.assert_allclose(b.explained_variance_, a.explained_variance_, rtol=1e-9)

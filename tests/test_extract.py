@@ -15,6 +15,7 @@ from hortishape.errors import ExtractionWarning, VolumeError
 from hortishape.extract import (
     decimate,
     extract_file,
+    extract_files,
     extract_surface,
     intensity_levels,
     render_extraction,
@@ -998,3 +999,22 @@ def test_a_level_kept_off_the_integers_downwards_gives_no_note_about_slices():
         warnings.simplefilter("error", ExtractionWarning)
         ext = extract_surface(data, level=499.97)
     assert ext.warnings == () and ext.levels.level == 499.97
+
+
+def test_a_real_kiwi_mri_as_the_scanner_wrote_it(tmp_path):
+    """128 extensionless DICOM slices of a 7 T MRI (tests/data/kiwi-mri, MIT licence): found by content,
+    read with the voxel size of their headers, and its surface closed, genus 0 and within 5 % of the
+    75.0 mL a hand-drawn whole-fruit mask holds."""
+    from pathlib import Path
+
+    pytest.importorskip("pydicom")
+    folder = Path(__file__).parent / "data" / "kiwi-mri"
+    results = extract_files([folder], tmp_path, picture=False)  # the folder with its SOURCE.md and LICENSE
+    assert [r.name for r in results] == ["dicom"] and results[0].ok, results[0].error
+    log = json.loads((tmp_path / "dicom.json").read_text())
+    assert log["units"]["spacing_mm"] == [0.234375, 0.234375, 0.5]
+    assert log["units"]["spacing_source"] == "DICOM PixelSpacing and ImagePositionPatient"
+    assert log["genus"] == 0
+    mesh = read_mesh(tmp_path / "dicom.ply")
+    check_closed_surface(mesh)
+    assert abs(signed_volume(mesh.vertices, mesh.faces)) / 1000 == pytest.approx(75.0, rel=0.05)

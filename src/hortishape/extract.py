@@ -3118,8 +3118,9 @@ def extract_files(
     Parameters
     ----------
     sources : sequence of path or VolumeSource
-        Volume files, DICOM / TIFF-slice folders, or what
-        :func:`collect_volumes` found.
+        Volume files, folders (each volume in them and their subfolders,
+        :func:`collect_volumes`), or what :func:`hortishape.io.find_sources`
+        found.
     out_dir : path
     level, smoothing, target_vertices, remove_support, support_radius, picture, spacing
         See :func:`extract_file`.
@@ -3153,7 +3154,9 @@ def extract_files(
     """
     _check_options(smoothing, target_vertices, support_radius)
     out = Path(out_dir)
-    paths = [s if isinstance(s, VolumeSource) else Path(s) for s in sources]
+    paths = []
+    for s in sources:  # a folder is searched as the command line searches it (collect_volumes)
+        paths += [s] if isinstance(s, VolumeSource) or not Path(s).is_dir() else collect_volumes([s])[0]
     stems = [volume_stem(p) for p in paths]
     dup = sorted({s for s in stems if stems.count(s) > 1})
     if dup:

@@ -220,6 +220,16 @@ def read_series(files: list[Path], *, name: Path) -> tuple[_RawVolume, dict]:
                 "to an upright grid (e.g. in the scanner's software) before extracting a surface")
         direction = np.column_stack([row, col, normal])
         origin = pos[0]
+        step = float((along[-1] - along[0]) / (len(along) - 1))
+        for key in ("SpacingBetweenSlices", "SliceThickness"):
+            # positions are written with a few digits each: a header's step that agrees is the exact one
+            value = ds0.get(key)
+            try:
+                if value not in (None, "") and abs(float(value) - step) <= 1e-6 * step:
+                    step = float(value)
+                    break
+            except (TypeError, ValueError):
+                pass
         spacing = np.array([spacing_px[1], spacing_px[0], step])
         source = "DICOM PixelSpacing and ImagePositionPatient"
     else:

@@ -32,8 +32,11 @@ class VolumeSource:
     ----------
     name : str
         The scan's name: its outputs are ``<name>.ply`` etc. A file's name
-        without its extension; a folder's name; a DICOM series' folder, or
-        its SeriesDescription where a folder holds several series.
+        without its extension; a folder's name; a DICOM series'
+        SeriesDescription where the series found all have distinct ones,
+        else its folder's name (or its description, where its folder holds
+        several series). Names that would clash get their folders' names in
+        front.
     path : Path
         The file, or the folder holding the slices.
     kind : {"file", "tiff-slices", "dicom"}
@@ -222,22 +225,35 @@ def _single_page(path: Path) -> bool:
 
 
 def _name_series(series: dict, skipped: list) -> list[VolumeSource]:
+    """One source per series of two slices or more, named after its SeriesDescription where several
+    series all have distinct ones (an operator's names for the fruit), else after its folder."""
     per_folder: dict[Path, set] = {}
     for uid, headers in series.items():
         for h in headers:
             per_folder.setdefault(h.path.parent, set()).add(uid)
-    found = []
+    kept = []
     for uid, headers in series.items():
         headers = sorted(headers, key=lambda h: h.path)
-        folders = sorted({h.path.parent for h in headers})
-        folder = folders[0] if len(folders) == 1 else Path(os.path.commonpath([str(f) for f in folders]))
         first = headers[0]
-        label = first.description or (f"series {first.number}" if first.number else uid)
         if len(headers) < 2 and first.frames < 2:
+            label = first.description or (f"series {first.number}" if first.number else uid)
             skipped.append((str(first.path), f"a DICOM series of one slice ({label}), not a volume"))
             continue
+        kept.append((uid, headers))
+    described = [_safe(h[0].description) for _, h in kept if h[0].description]
+    by_description = len(kept) > 1 and len(described) == len(kept) and len(set(described)) == len(kept)
+    found = []
+    for uid, headers in kept:
+        first = headers[0]
+        folders = sorted({h.path.parent for h in headers})
+        folder = folders[0] if len(folders) == 1 else Path(os.path.commonpath([str(f) for f in folders]))
         alone = len(folders) == 1 and per_folder[folder] == {uid}
-        name = folder.name if alone else _safe(first.description or f"series_{first.number or uid[-8:]}")
+        if by_description:
+            name = _safe(first.description)
+        elif alone:
+            name = folder.name
+        else:
+            name = _safe(first.description or f"series_{first.number or uid[-8:]}")
         found.append(VolumeSource(name, folder, "dicom", tuple(h.path for h in headers), uid, first.description))
     return found
 
