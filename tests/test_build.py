@@ -287,7 +287,7 @@ def test_six_apples_as_extensionless_dicom_series_in_study_folders_build_the_mod
     from_mha = build_model(mha, tmp_path / "m1", n_points=800, config=config, n_jobs=2)
     assert main(["build", str(dicom), "--out", str(tmp_path / "m2"), "--points", "800", "--iterations", "6"]) == 0
     out = capsys.readouterr().out
-    assert f"skipped {dicom / 'notes.txt'}: not a mesh, a volume or a DICOM file" in out
+    assert f"passed over {dicom / 'notes.txt'}: not a mesh, a volume or a DICOM file" in out
     assert "a DICOM series of one slice (localizer)" in out
     a, b = ShapeModel.load(from_mha.model_path), ShapeModel.load(tmp_path / "m2" / "model.h5")
     summary = json.loads((tmp_path / "m2" / "summary.json").read_text())

@@ -141,9 +141,9 @@ def test_broken_files_load_or_give_hortishape_s_error(tmp_path, family):
     listing.write_text(json.dumps(cases))
     try:
         run = subprocess.run([sys.executable, "-c", WORKER, str(listing)], capture_output=True, text=True,
-                             timeout=300)
+                             encoding="utf-8", errors="replace", timeout=300)
     except subprocess.TimeoutExpired as exc:
-        lines = (exc.stdout or b"").decode() if isinstance(exc.stdout, bytes) else (exc.stdout or "")
+        lines = exc.stdout.decode("utf-8", "replace") if isinstance(exc.stdout, bytes) else (exc.stdout or "")
         last = [json.loads(x) for x in lines.splitlines() if x.startswith("{")][-1:]
         pytest.fail(f"hung on {last}")
     reports = [json.loads(x) for x in run.stdout.splitlines() if x.startswith("{")]

@@ -45,7 +45,7 @@ def test_every_declared_lower_bound_is_pinned_for_ci():
 def _imports(path: Path, module: str, package: str) -> set[str]:
     """Modules of the package that ``module`` imports anywhere (top level, in functions, under TYPE_CHECKING)."""
     found = set()
-    for node in ast.walk(ast.parse(path.read_text())):
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
         if isinstance(node, ast.ImportFrom):
             if node.level:
                 base = package.split(".")[: len(package.split(".")) - node.level + 1]

@@ -294,8 +294,7 @@ def _run_extract(args) -> int:
         raise HortishapeError(f"--smoothing must be 0 or more iterations, got {args.smoothing}")
     start = time.perf_counter()
     volumes, passed = collect_volumes(args.volumes, exclude=[args.out])
-    for path, reason in passed:
-        print(f"skipped {path}: {reason}")
+    _print_passed_over(passed)
     results = extract_files(
         volumes, args.out, level=args.level, smoothing=args.smoothing,
         target_vertices=args.target_vertices, remove_support=not args.keep_support,
@@ -565,12 +564,26 @@ def _add_batch_options(p, folder: str) -> None:
                         "(default: only this build's OUT, from which an interrupted build resumes)")
 
 
+def _print_passed_over(passed) -> None:
+    """The files and folders that are not scans, with why; many for one reason in one line."""
+    reasons: dict[str, list[str]] = {}
+    for path, reason in passed:
+        reasons.setdefault(reason, []).append(str(path))
+    for reason, paths in reasons.items():
+        if len(paths) > 3:
+            print(f"passed over {len(paths)} files ({', '.join(paths[:2])}, ...): {reason}")
+        else:
+            for path in paths:
+                print(f"passed over {path}: {reason}")
+
+
 def _print_build(result) -> None:
     print(f"reference: {result.reference}")
     print("first pass (the reference registered to every scan):")
     _print_results(result.first_pass)
     print("second pass (the first pass's mean registered to every scan: the model's correspondences):")
     _print_results(result.second_pass)
+    _print_passed_over(result.passed_over)
     for path, reason in result.skipped:
         print(f"skipped {reason if reason.startswith(str(path)) else f'{path}: {reason}'}")
     retried = [f"{name} ({f'pass {k}' if isinstance(k, int) else k}, {attempts} attempts)"
@@ -641,6 +654,7 @@ def _run_update(args) -> int:
     added = [r for r in result.second_pass if r.ok]
     print(f"added to {args.model_dir} ({len(result.names) - len(added)} scans, kept as they were):")
     _print_results(result.second_pass)
+    _print_passed_over(result.passed_over)
     for path, reason in result.skipped:
         print(f"skipped {reason if reason.startswith(str(path)) else f'{path}: {reason}'}")
     import json

@@ -661,6 +661,9 @@ class BuildResult:
     retried : tuple of (str, int or str, int)
         ``(name, pass, attempts)`` of the registrations run again after their
         worker was lost: pass 1, 2 or ``"orientation check"``.
+    passed_over : tuple of (str, str)
+        ``(path, reason)`` of every file or folder in the input that is not a
+        scan (:func:`hortishape.io.find_sources`): notes, logs, a localizer.
     """
 
     out_dir: Path
@@ -675,6 +678,7 @@ class BuildResult:
     seconds: float
     uncertain_orientation: tuple = ()
     retried: tuple = ()
+    passed_over: tuple = ()
 
 
 def _stage(progress_factory, total: int, desc: str) -> Progress | None:
@@ -796,10 +800,9 @@ def build_model(
     skipped = failed + [(c.path, c.error) for c in checks if not c.ok]
     if strict and skipped:
         raise HortishapeError(skipped[0][1])
-    skipped = [(p, f"{p}: {r}") for p, r in passed] + skipped
     usable = [Path(c.path) for c in checks if c.ok]
     if len(usable) < 3:
-        reasons = "; ".join(e for _, e in skipped[:3])
+        reasons = "; ".join([e for _, e in skipped[:3]] + [f"{p}: {r}" for p, r in passed[:3]])
         raise HortishapeError(
             f"{input_dir}: {len(usable)} usable scans; a shape model needs at least 3"
             + (f" ({reasons})" if reasons else "")
@@ -878,6 +881,7 @@ def build_model(
         "n_points": template.mesh.n_vertices,
         "instances": names,
         "skipped": [{"path": p, "reason": e} for p, e in skipped],
+        "passed_over": [{"path": p, "reason": r} for p, r in passed],
         "retried": [{"name": n, "pass": k, "attempts": a} for n, k, a in retried],
         "first_pass": [asdict(r) for r in first],
         "orientation_check": rechecked,
@@ -888,7 +892,7 @@ def build_model(
     atomic_text(layout.summary, json.dumps(_jsonable(summary), indent=1), HortishapeError)
     return BuildResult(out, model_path, str(ref_path), tuple(names), tuple(skipped), tuple(first),
                        tuple(second), model.explained_variance_, model.n_points_, seconds, uncertain,
-                       tuple(retried))
+                       tuple(retried), tuple(passed))
 
 
 #: An instance whose first-pass orientation confidence (the search's margin
@@ -1184,7 +1188,6 @@ def update_model(
             skipped.append((c.path, f"{c.path}: a scan named {Path(c.path).stem} is already in the model"))
     if strict and skipped:
         raise HortishapeError(skipped[0][1])
-    skipped = [(p, f"{p}: {r}") for p, r in passed] + skipped
     usable = [Path(c.path) for c in checks if c.ok and Path(c.path).stem not in taken]
     cfg = config if config is not None else RegistrationConfig()
     template = prepare_reference(Mesh(old_model.mean_, old_model.faces_), None)
@@ -1194,7 +1197,7 @@ def update_model(
     skipped += [(r.source, r.error) for r in added if not r.ok]
     new_names = [r.name for r in added if r.ok]
     if not new_names:
-        reasons = "; ".join(e for _, e in skipped[:3])
+        reasons = "; ".join([e for _, e in skipped[:3]] + [f"{p}: {r}" for p, r in passed[:3]])
         raise HortishapeError(f"{input_dir}: no new scan was registered" + (f" ({reasons})" if reasons else ""))
 
     # the earlier scans as they are: registered surfaces and logs copied, aligned surfaces read
@@ -1219,6 +1222,7 @@ def update_model(
         "n_points": model.n_points_,
         "instances": names,
         "skipped": [{"path": p, "reason": e} for p, e in skipped],
+        "passed_over": [{"path": p, "reason": r} for p, r in passed],
         "retried": [{"name": n, "pass": k, "attempts": a} for n, k, a in retried],
         "update": {
             "from": str(src.root),
@@ -1236,7 +1240,8 @@ def update_model(
     }
     atomic_text(layout.summary, json.dumps(_jsonable(summary), indent=1), HortishapeError)
     return BuildResult(layout.root, layout.model, f"the mean of {src.model}", tuple(names), tuple(skipped), (),
-                       tuple(added), model.explained_variance_, model.n_points_, seconds, (), tuple(retried))
+                       tuple(added), model.explained_variance_, model.n_points_, seconds, (), tuple(retried),
+                       tuple(passed))
 
 
 def _units_summary(checks, scale: float) -> dict:

@@ -201,7 +201,7 @@ def plausible_voxel_factors(extent_mm: float, volume_mm3: float) -> tuple[float,
     --------
     >>> lo, hi = plausible_voxel_factors(200.0, 2_806_000.0)  # a ball read at 1 mm voxels, not 0.4
     >>> bool(lo <= 0.4 <= hi), round(lo, 3), round(hi, 3)
-    (True, 0.071, 1.517)
+    (True, 0.071, 1.527)
     """
     (lo, hi), (vlo, vhi) = PRODUCT_EXTENT_MM, PRODUCT_VOLUME_ML
     if not (extent_mm > 0 and volume_mm3 > 0):

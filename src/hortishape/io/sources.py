@@ -15,7 +15,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .._files import PathLike, full_suffix
-from . import dicom, tiff
+from .dicom import DicomHeader, read_header
+from .tiff import LOG_EXTENSIONS, TIFF_EXTENSIONS, find_scanner_log
 from .mesh_files import is_mesh_file
 
 #: Volume file extensions (besides TIFF) read as one volume each.
@@ -146,7 +147,7 @@ def find_sources(paths: PathLike | Iterable[PathLike], *, meshes: bool = True,
     volumes: list[VolumeSource] = []
     mesh_files: list[Path] = []
     skipped: list[tuple[str, str]] = []
-    series: dict[str, list[dicom.DicomHeader]] = {}
+    series: dict[str, list[DicomHeader]] = {}
     logs: list[Path] = []
 
     def take_file(f: Path, tiffs_are_slices: bool, nested: bool = False) -> str | None:
@@ -154,7 +155,7 @@ def find_sources(paths: PathLike | Iterable[PathLike], *, meshes: bool = True,
         ext = full_suffix(f)
         if ext in _VOLUME_FILES:
             volumes.append(VolumeSource(_stem(f), f))
-        elif ext in tiff.TIFF_EXTENSIONS:
+        elif ext in TIFF_EXTENSIONS:
             if not tiffs_are_slices:
                 volumes.append(VolumeSource(_stem(f), f))
         elif is_mesh_file(f):
@@ -165,10 +166,12 @@ def find_sources(paths: PathLike | Iterable[PathLike], *, meshes: bool = True,
             mesh_files.append(f)
         elif ext in _DATA_FILES and any(f.with_name(f.name[: -len(ext)] + h).exists() for h in (".mhd", ".nhdr")):
             pass  # the data of a header beside it
-        elif ext in tiff.LOG_EXTENSIONS:
+        elif ext in LOG_EXTENSIONS:
             logs.append(f)
+        elif f.name.endswith((".truth.json", ".truth.npz")):
+            return "the ground truth of a synthetic scan (hortishape synth)"
         else:
-            header = dicom.read_header(f)
+            header = read_header(f)
             if header is None:
                 return "not a mesh, a volume or a DICOM file"
             if not header.is_directory:
@@ -184,7 +187,7 @@ def find_sources(paths: PathLike | Iterable[PathLike], *, meshes: bool = True,
             here = Path(root)
             dirs[:] = sorted(d for d in dirs if not d.startswith(".") and (here / d).resolve() not in excluded)
             files = sorted(f for f in files if not f.startswith("."))
-            tifs = [f for f in files if full_suffix(Path(f)) in tiff.TIFF_EXTENSIONS]
+            tifs = [f for f in files if full_suffix(Path(f)) in TIFF_EXTENSIONS]
             slices = len(tifs) >= 2 and _single_page(here / tifs[0])
             if slices:
                 volumes.append(VolumeSource(here.name, here, "tiff-slices"))
@@ -259,8 +262,8 @@ def _name_series(series: dict, skipped: list) -> list[VolumeSource]:
 
 
 def _add_log_reasons(logs: list[Path], volumes: list[VolumeSource], skipped: list) -> None:
-    stacks = [v.path for v in volumes if full_suffix(v.path) in tiff.TIFF_EXTENSIONS or v.kind == "tiff-slices"]
-    used = {found[0] for s in stacks if (found := tiff.find_scanner_log(s)) is not None}
+    stacks = [v.path for v in volumes if full_suffix(v.path) in TIFF_EXTENSIONS or v.kind == "tiff-slices"]
+    used = {found[0] for s in stacks if (found := find_scanner_log(s)) is not None}
     skipped.extend((str(f), "a log beside no TIFF stack") for f in logs if f not in used)
 
 

@@ -33,7 +33,7 @@ TIFF_EXTENSIONS = (".tif", ".tiff")
 LOG_EXTENSIONS = (".log", ".xtekct", ".xtekvolume")
 
 #: Length units in metadata and logs, in mm.
-_UNITS_MM = {"mm": 1.0, "millimeter": 1.0, "millimetre": 1.0, "um": 1e-3, "µm": 1e-3, "\u00b5m": 1e-3,
+_UNITS_MM = {"mm": 1.0, "millimeter": 1.0, "millimetre": 1.0, "um": 1e-3, "\u00b5m": 1e-3,
              "micron": 1e-3, "microns": 1e-3, "micrometer": 1e-3, "micrometre": 1e-3, "nm": 1e-6,
              "cm": 10.0, "centimeter": 10.0, "m": 1000.0, "meter": 1000.0, "metre": 1000.0}
 
@@ -61,7 +61,7 @@ def _ome_spacing(xml: str) -> tuple[np.ndarray, str] | None:
     sizes = []
     for axis in "XYZ":
         value = attrs.get(f"PhysicalSize{axis}")
-        factor = _unit_mm(attrs.get(f"PhysicalSize{axis}Unit", "µm"))  # the OME schema's default unit
+        factor = _unit_mm(attrs.get(f"PhysicalSize{axis}Unit", "\u00b5m"))  # the OME schema's default unit
         if value is None or factor is None:
             return None
         sizes.append(float(value) * factor)
