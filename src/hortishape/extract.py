@@ -2487,31 +2487,6 @@ def _attach_small(regions: np.ndarray, dist: np.ndarray, n: int, counts: np.ndar
     return target[regions]
 
 
-def _nearest_core(regions: np.ndarray, dist: np.ndarray, n: int, spacing: np.ndarray, where: np.ndarray) -> np.ndarray:
-    """Each voxel of ``where`` given to the product whose core is nearest.
-
-    The cores are the products' voxels deeper than their deepest contact
-    (one depth for all), so the boundary between two touching products is
-    where they are equally deep: through their contact, as their surfaces
-    meet. (A watershed on the distance map puts it anywhere across the
-    plateau where they are fused.)
-    """
-    from scipy import ndimage
-
-    _, _, passes = _pass_values(regions, dist, n)
-    depth = float(passes.max()) + float(spacing.max()) if passes.size else 0.0
-    peaks = np.zeros(n + 1)
-    peaks[1:] = ndimage.maximum(dist, regions, index=np.arange(1, n + 1))
-    # a product no deeper than that (small beside a large one): its own deepest part
-    depths = np.where(peaks > depth, depth, 0.8 * peaks)
-    cores = np.where(dist > depths[regions], regions, 0)
-    cores[regions == 0] = 0
-    _, nearest = ndimage.distance_transform_edt(cores == 0, sampling=spacing, return_indices=True)
-    grown = cores[tuple(nearest)]
-    grown[~where] = 0
-    return grown
-
-
 def _reading_order(centres: np.ndarray, sizes: np.ndarray) -> np.ndarray:
     """Rows along y (a new row where y jumps by more than half a product), then along x."""
     if len(centres) == 0:
@@ -2532,12 +2507,15 @@ def split_products(volume, *, level: float | None = None, name: str = "volume") 
     and stalks come off). Its distance map's peaks seed a watershed; regions
     whose pass is high against their peaks (:data:`SPLIT_SADDLE_SHARE`,
     :data:`SPLIT_PEAK_SHARE`) are one product, so touching fruit come apart
-    at their contact and a pear at its neck does not. A piece that touches
-    the volume's edge or holds less than :data:`SPLIT_MIN_SHARE` of the
-    largest product's voxels is left out, and said so. Each product is cut
-    out with a margin, the other products' voxels (and their partial-volume
-    rims) set to the background; a tray or stalk in its box stays, for
-    :func:`extract_surface` to drop as a support or keep as the product's own.
+    at their contact and a pear at its neck does not; a small piece touching
+    a product (a thick stalk) is part of it. A piece that touches the
+    volume's edge or holds less than :data:`SPLIT_MIN_SHARE` of the largest
+    product's voxels is left out, and said so. The products are grown back
+    over what the opening took (stalks, thin tips) by the same watershed, a
+    thin piece reaching the volume's edge (a tray) excepted. Each product is
+    cut out with a margin, the other products' voxels (and their
+    partial-volume rims) set to the background; a tray in its box stays, for
+    :func:`extract_surface` to drop as a support.
 
     Parameters
     ----------
@@ -2610,7 +2588,9 @@ def split_products(volume, *, level: float | None = None, name: str = "volume") 
     del thin
     regions = _attach_small(regions, dist, n, counts, edge, largest)
     counts = np.bincount(regions.ravel(), minlength=n + 1)
-    grown = _nearest_core(regions, dist, n, spacing, solid & ~loose)
+    # the thick parts by nearest core; thin parts (a stalk, a banana's tip) along the solid from them
+    # the products grown back over what the opening took (stalks, tips), along the solid
+    grown = watershed(-dist, regions, mask=solid & ~loose)
     voxel_ml = float(np.prod(spacing)) / 1000.0
     keep, left_out = [], []
     boxes = ndimage.find_objects(grown)
