@@ -208,3 +208,18 @@ def test_convert_and_sample_take_a_model_scalismo_wrote(tmp_path, capsys):
     capsys.readouterr()
     assert main(["sample", str(tmp_path / "points.h5"), "2", "--out", str(tmp_path / "p")]) == 1
     assert "point-set model (no triangles)" in capsys.readouterr().err
+
+
+def test_a_warning_is_one_hortishape_line_without_python_s_file_and_line(monkeypatch, capsys):
+    import warnings
+
+    from hortishape import cli
+
+    def run(args):
+        warnings.warn("scan.tif: a voxel size\n    from the log", UserWarning)
+        return 0
+
+    monkeypatch.setattr(cli, "_run_convert", run)
+    assert cli.main(["convert", "model.h5", "out.h5"]) == 0
+    assert capsys.readouterr().err == "hortishape: warning: scan.tif: a voxel size from the log\n"
+    assert warnings.showwarning is not cli._show_warning  # put back after the command

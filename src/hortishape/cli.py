@@ -229,8 +229,12 @@ def _add_extract(sub) -> None:
         help="extract the product's outer surface from CT or MRI volumes",
         description=(
             "Extract the outer surface of the product in each CT or MRI VOLUME (MHA/MHD, NRRD, NIfTI, a "
-            "TIFF stack, or a folder holding a DICOM series or TIFF slices; spacing, origin and direction "
-            "are applied, lengths in mm):\n"
+            "TIFF stack, a folder of TIFF slices, a DICOM series; spacing, origin and direction are applied, "
+            "lengths in mm). A folder is searched with its subfolders, as 'build' searches its INPUT_DIR: "
+            "DICOM series are found by content whatever their files are called (several per study folder, "
+            "named after their folder or SeriesDescription), and what is not a volume is listed as passed "
+            "over. A TIFF's voxel size comes from its OME/ImageJ metadata or the scanner's log beside it "
+            "(SkyScan .log, Nikon .xtekct); a volume without one is refused: give --spacing.\n"
             "  1. the iso level on the boundary between air and the outermost tissue: half-way between\n"
             "     the background and product intensities (the histogram's peaks either side of Otsu's\n"
             "     threshold), or, where rays from outside meet a tissue of another brightness first (a\n"
@@ -252,14 +256,17 @@ def _add_extract(sub) -> None:
             "  DIR/<stem>.png   the surface beside two slices of the volume with its outline on them,\n"
             "                   the level's explanation and the warnings\n\n"
             "Warnings (on stderr and in the JSON): gaps that had to be closed, a product touching the\n"
-            "volume's border, a size far from a fruit's, a support that takes most of the voxels.\n\n"
+            "volume's border, a size far from a fruit's, a support that takes most of the voxels. A\n"
+            "product outside a fruit's sizes (10-600 mm, 1 mL-10 L) is refused with the voxel sizes that\n"
+            "would make it one.\n\n"
             "A volume that cannot be used is reported in one line and skipped (--strict stops); run "
             "again and volumes already extracted with the same options are not redone."
         ),
         epilog=EPILOG,
         formatter_class=_Formatter,
     )
-    p.add_argument("volumes", type=Path, nargs="+", metavar="VOLUME", help="volume files or DICOM/TIFF folders")
+    p.add_argument("volumes", type=Path, nargs="+", metavar="VOLUME",
+                   help="volume files, or folders holding them (DICOM series, TIFF slices, volume files)")
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder (created if needed)")
     p.add_argument("--level", type=float, default=None, metavar="L",
                    help="iso level in the volume's intensity units; when not given, on the boundary between "
@@ -518,8 +525,10 @@ def _add_build(sub) -> None:
         formatter_class=_Formatter,
     )
     p.add_argument("input_dir", type=Path, metavar="INPUT_DIR",
-                   help="folder of scans (PLY, STL, OBJ, OFF, VTK, VTP) or of CT volumes (MHA, MHD, NRRD, "
-                        "NIfTI, TIFF; surfaces extracted first into OUT/surfaces, as by 'hortishape extract')")
+                   help="folder of scans (PLY, STL, OBJ, OFF, VTK, VTP) or of CT/MRI volumes (MHA, MHD, NRRD, "
+                        "NIfTI, TIFF, DICOM series found by content in it and its subfolders; surfaces extracted "
+                        "first into OUT/surfaces, as by 'hortishape extract'); what is not a scan is listed as "
+                        "passed over")
     p.add_argument("--out", type=Path, required=True, metavar="OUT", help="output folder")
     p.add_argument("--reference", type=Path, default=None, metavar="FILE",
                    help="the first pass's reference scan (default: the scan nearest the median size)")
