@@ -115,3 +115,22 @@ def test_a_broken_series_is_refused_with_one_clear_message(tmp_path, case, expec
     with pytest.raises(VolumeError, match=_starts(folder, expected)) as err:
         read_volume(folder)
     assert "\n" not in str(err.value)
+
+
+def test_a_multi_frame_file_is_one_volume(tmp_path):
+    sitk = pytest.importorskip("SimpleITK")
+    data = np.arange(5 * 6 * 7, dtype=np.uint16).reshape(7, 6, 5)  # (z, y, x)
+    image = sitk.GetImageFromArray(data)
+    image.SetSpacing((0.5, 0.6, 0.7))
+    image.SetOrigin((1, 2, 3))
+    (tmp_path / "mf").mkdir()
+    writer = sitk.ImageFileWriter()
+    writer.SetImageIO("GDCMImageIO")
+    writer.SetFileName(str(tmp_path / "mf" / "IMG0001"))  # all frames in one file, no extension
+    writer.Execute(image)
+    found = find_sources(tmp_path)
+    assert [(v.name, v.kind) for v in found.volumes] == [("mf", "dicom")] and found.skipped == ()
+    vol = read_volume(found.volumes[0])
+    np.testing.assert_array_equal(vol.data, data.transpose(2, 1, 0))
+    np.testing.assert_allclose(vol.spacing, [0.5, 0.6, 0.7])
+    np.testing.assert_allclose(vol.origin, [1, 2, 3])

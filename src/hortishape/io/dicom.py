@@ -115,8 +115,34 @@ def _floats(ds, keyword: str, n: int, where: Path) -> np.ndarray | None:
     return arr
 
 
-def _pixels(ds, path: Path) -> np.ndarray:
-    """A slice's stored values (rows, columns), decoded by pydicom, or by SimpleITK for what pydicom cannot."""
+def _multi_frame(path: Path, ds) -> tuple[_RawVolume, dict]:
+    """A multi-frame (enhanced) DICOM file: one volume in one file, read with its geometry by SimpleITK."""
+    try:
+        sitk = importlib.import_module("SimpleITK")
+    except ImportError:
+        raise _ParseError(f"{path.name} is a multi-frame DICOM file: reading it needs SimpleITK "
+                          '(pip install "hortishape[ct]")') from None
+    try:
+        image = sitk.ReadImage(str(path))  # GDCM applies the rescale
+    except RuntimeError as exc:
+        raise _ParseError(f"{path.name}: cannot read this multi-frame DICOM file ({exc})".splitlines()[0]) from None
+    if image.GetDimension() != 3 or image.GetNumberOfComponentsPerPixel() != 1:
+        raise _ParseError(f"{path.name}: not one grey-value 3D volume")
+    data = sitk.GetArrayFromImage(image).transpose(2, 1, 0)
+    info = {"spacing_source": "DICOM multi-frame header (SimpleITK)", "series_uid": str(ds.get("SeriesInstanceUID", "")),
+            "series_description": str(ds.get("SeriesDescription", "") or ""), "n_slices": int(data.shape[2]),
+            "modality": str(ds.get("Modality", "") or "")}
+    return _RawVolume(np.ascontiguousarray(data), np.array(image.GetSpacing()), np.array(image.GetOrigin()),
+                      np.array(image.GetDirection()).reshape(3, 3)), info
+
+
+def _pixels(ds, path: Path) -> tuple[np.ndarray, bool]:
+    """A slice's values (rows, columns) and whether they are rescaled already.
+
+    Decoded by pydicom (stored values), or by SimpleITK where pydicom cannot
+    (a compression it has no decoder for), which applies the rescale itself.
+    """
+    rescaled = False
     try:
         arr = ds.pixel_array
     except Exception as exc:  # noqa: BLE001 - truncated data, an unknown compression: say which slice
@@ -124,6 +150,7 @@ def _pixels(ds, path: Path) -> np.ndarray:
             sitk = importlib.import_module("SimpleITK")
             arr = sitk.GetArrayFromImage(sitk.ReadImage(str(path)))
             arr = arr.reshape(arr.shape[-2:]) if arr.ndim == 3 and arr.shape[0] == 1 else arr
+            rescaled = True
         except Exception:  # noqa: BLE001
             first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
             raise _ParseError(f"slice {path.name}: cannot decode its pixels ({first})") from None
@@ -131,7 +158,7 @@ def _pixels(ds, path: Path) -> np.ndarray:
     if arr.ndim != 2:
         what = "colour" if arr.ndim == 3 and arr.shape[-1] in (3, 4) else f"shape {arr.shape}"
         raise _ParseError(f"slice {path.name}: is not one grey-value image ({what})")
-    return arr
+    return arr, rescaled
 
 
 def read_series(files: list[Path], *, name: Path) -> tuple[_RawVolume, dict]:
@@ -161,8 +188,7 @@ def read_series(files: list[Path], *, name: Path) -> tuple[_RawVolume, dict]:
             raise _ParseError(f"slice {f.name}: cannot read its header ({first})") from None
         slices.append((f, ds))
     if len(slices) == 1 and int(slices[0][1].get("NumberOfFrames", 1) or 1) > 1:
-        raise _ParseError(f"{files[0].name} is a multi-frame DICOM file, not yet supported; "
-                          "export the series as one file per slice")
+        return _multi_frame(files[0], slices[0][1])
     if len(slices) < 2:
         raise _ParseError(f"the series has {len(slices)} slice; a volume needs at least 2")
     uids = {str(ds.get("SeriesInstanceUID", "")) for _, ds in slices}
@@ -251,10 +277,10 @@ def read_series(files: list[Path], *, name: Path) -> tuple[_RawVolume, dict]:
         spacing = np.array([spacing_px[1], spacing_px[0], step])
     planes = []
     for f, ds in slices:
-        values = _pixels(ds, f).astype(np.float64)
-        slope = float(ds.get("RescaleSlope", 1) or 1)
-        intercept = float(ds.get("RescaleIntercept", 0) or 0)
-        planes.append((values, slope, intercept))
+        values, rescaled = _pixels(ds, f)
+        slope = 1.0 if rescaled else float(ds.get("RescaleSlope", 1) or 1)
+        intercept = 0.0 if rescaled else float(ds.get("RescaleIntercept", 0) or 0)
+        planes.append((values.astype(np.float64), slope, intercept))
     integral = all(s == 1.0 and float(i).is_integer() for _, s, i in planes)
     data = np.stack([v * s + i for v, s, i in planes], axis=-1)  # (rows, columns, slices)
     data = data.transpose(1, 0, 2)  # [x = column, y = row, z = slice]
