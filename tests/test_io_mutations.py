@@ -117,18 +117,16 @@ def test_broken_files_load_or_give_hortishape_s_error(tmp_path, family):
             slice_file = copy / f"IM{int(rng.integers(0, 5)):04d}"
             slice_file.write_bytes(_mutants(slice_file.read_bytes(), rng, 3)[k % 3])
             cases.append(("series", str(copy)))
-        slices = tmp_path / "slices_bad"  # TIFF slices with one of them broken
-        for k in range(N_PER_FORMAT // 2):
+        import tifffile
+
+        for k in range(N_PER_FORMAT // 2):  # TIFF slices with one of them broken
             folder = tmp_path / f"slices_{k}"
             folder.mkdir()
-            import tifffile
-
             for z in range(4):
                 tifffile.imwrite(folder / f"s{z}.tif", _shape()[:, :, z].T.copy())
             bad = folder / f"s{int(rng.integers(0, 4))}.tif"
             bad.write_bytes(_mutants(bad.read_bytes(), rng, 3)[k % 3])
             cases.append(("tiff", str(folder)))
-        del slices
     else:
         for kind, path in _files(originals):
             if (kind == "mesh") != (family == "meshes"):

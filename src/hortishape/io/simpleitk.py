@@ -29,10 +29,6 @@ def _sitk_message(exc: Exception) -> str:
     return re.sub(r"^sitk::ERROR:\s*", "", lines[-1]) if lines else type(exc).__name__
 
 
-def _natural_key(path: Path) -> list:
-    return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", path.name)]
-
-
 def _read_sitk(path: Path) -> _RawVolume:
     """A volume from an NRRD or NIfTI file."""
     sitk = _import_sitk(path, "reading", f"{full_suffix(path)} files")

@@ -38,6 +38,11 @@ _UNITS_MM = {"mm": 1.0, "millimeter": 1.0, "millimetre": 1.0, "um": 1e-3, "\u00b
              "cm": 10.0, "centimeter": 10.0, "m": 1000.0, "meter": 1000.0, "metre": 1000.0}
 
 
+def _natural_key(path: Path) -> list:
+    """Slices in natural name order: ``s2`` before ``s10``."""
+    return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", path.name)]
+
+
 def _tifffile(path: Path):
     try:
         return importlib.import_module("tifffile")
@@ -185,8 +190,6 @@ def read_tiff(path: Path) -> tuple[_RawVolume, dict]:
     tifffile = _tifffile(path)
     try:
         if path.is_dir():
-            from .simpleitk import _natural_key
-
             files = sorted((f for f in path.iterdir() if f.is_file() and not f.name.startswith(".")
                             and f.suffix.lower() in TIFF_EXTENSIONS), key=_natural_key)
             if len(files) < 2:

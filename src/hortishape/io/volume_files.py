@@ -29,7 +29,7 @@ class _VolumeFormat(NamedTuple):
 
 _METAIMAGE = _VolumeFormat("MetaImage", _read_metaimage, _write_metaimage)
 _NIFTI = _VolumeFormat("NIfTI", _read_sitk, _write_sitk)
-_TIFF = _VolumeFormat("TIFF", _read_sitk, _write_tiff)
+_TIFF = _VolumeFormat("TIFF", lambda path: read_tiff(path)[0], _write_tiff)
 
 _VOLUME_FORMATS: Mapping[str, _VolumeFormat] = MappingProxyType(
     {
