@@ -134,3 +134,10 @@ def test_a_multi_frame_file_is_one_volume(tmp_path):
     np.testing.assert_array_equal(vol.data, data.transpose(2, 1, 0))
     np.testing.assert_allclose(vol.spacing, [0.5, 0.6, 0.7])
     np.testing.assert_allclose(vol.origin, [1, 2, 3])
+    np.testing.assert_array_equal(read_volume(tmp_path / "mf" / "IMG0001").data, vol.data)  # the file named
+
+
+def test_one_slice_named_on_its_own_is_refused_with_what_to_pass(tmp_path):
+    write_dicom_series(tmp_path / "scan", ball_ct(n=8), series_uid=ROOT + "40")
+    with pytest.raises(VolumeError, match=_starts(tmp_path / "scan" / "IM0003", "pass the folder of the series")):
+        read_volume(tmp_path / "scan" / "IM0003")

@@ -14,7 +14,7 @@ from .._files import PathLike, check_not_empty, full_suffix
 from ..errors import VolumeError
 from ._common import _ParseError, _RawVolume
 from .metaimage import _read_metaimage, _write_metaimage
-from .dicom import read_series
+from .dicom import read_header, read_series
 from .simpleitk import _read_sitk, _sitk_message, _write_sitk
 from .sources import VolumeSource, find_sources
 from .tiff import LOG_EXTENSIONS, TIFF_EXTENSIONS, _write_tiff, read_tiff
@@ -136,19 +136,25 @@ def read_volume(path: PathLike, *, spacing: npt.ArrayLike | None = None) -> Volu
                 check_not_empty(p, VolumeError)
             raw, info = read_tiff(p)
         else:
-            if extension == ".dcm":
+            header = read_header(p) if extension not in _VOLUME_FORMATS else None
+            if header is not None and header.is_directory:
+                raise VolumeError(f"{p}: a DICOMDIR, the index of a DICOM tree: pass the folder that holds it")
+            if header is not None and header.frames > 1:  # a multi-frame file: a volume of its own
+                raw, info = read_series([p], name=p)
+            elif extension == ".dcm" or header is not None:
                 raise VolumeError(
                     f"{p}: a single DICOM file holds one slice; pass the folder of the series"
                 )
-            if extension not in _VOLUME_FORMATS:
+            elif extension not in _VOLUME_FORMATS:
                 shown = extension or "(none)"
                 raise VolumeError(
                     f"{p}: unknown volume format {shown!r}; supported: {', '.join(volume_formats())}, "
                     "or a folder of DICOM files or of .tif slices"
                 )
-            check_not_empty(p, VolumeError)
-            raw = _VOLUME_FORMATS[extension].read(p)
-            info = {"spacing_source": f"the {_VOLUME_FORMATS[extension].name} header"}
+            else:
+                check_not_empty(p, VolumeError)
+                raw = _VOLUME_FORMATS[extension].read(p)
+                info = {"spacing_source": f"the {_VOLUME_FORMATS[extension].name} header"}
     except VolumeError:
         raise
     except _ParseError as exc:
