@@ -165,7 +165,8 @@ def find_scans(folder, out_dir, *, n_jobs: int | None = None, strict: bool = Fal
     failed : list of (str, str)
         ``(volume, reason)`` of every volume whose extraction failed.
     passed_over : list of (str, str)
-        ``(path, reason)`` of every file or folder that is not a scan.
+        ``(path, reason)`` of every file or folder that is not a scan, and
+        with ``split``, of every piece of a volume left out.
 
     Raises
     ------
@@ -194,6 +195,7 @@ def find_scans(folder, out_dir, *, n_jobs: int | None = None, strict: bool = Fal
                                 scheduler=scheduler, split=split)
         files += [Path(r.mesh) for r in results if r.ok]
         failed = [(r.source, r.error) for r in results if not r.ok]
+        passed += [(r.source, f"left out of the split: {why}") for r in results for why in r.left_out]
     return sorted(files, key=lambda p: p.name), failed, passed
 
 
