@@ -67,10 +67,15 @@ def test_pieces_cut_by_the_edge_or_too_small_are_left_out_and_said_so(tray, tmp_
     assert sorted(_match(tray, split.centres)) == [0, 1, 3, 4]
     reasons = " | ".join(split.left_out)
     assert "touches the volume's edge" in reasons and "too small to be a product" in reasons
-    path = write_volume(tmp_path / "cut.mha", Volume(data, vol.spacing, vol.origin))
-    results = extract_products(path, tmp_path / "s", picture=False)
+    (tmp_path / "scans").mkdir()
+    path = write_volume(tmp_path / "scans" / "cut.mha", Volume(data, vol.spacing, vol.origin))
+    results = extract_products(path, tmp_path / "model" / "surfaces")
     assert [r.name for r in results] == [f"cut_{k}" for k in range(1, 5)] and all(r.ok for r in results)
     assert results[0].left_out == split.left_out
+    # build --split lists them with what it passed over (the extraction found done)
+    paths, failed, passed = find_scans(tmp_path / "scans", tmp_path / "model", n_jobs=1, split=True)
+    assert len(paths) == 4 and failed == []
+    assert [why for _, why in passed] == [f"left out of the split: {why}" for why in split.left_out]
 
 
 def test_a_pear_is_not_parted_at_its_neck_nor_a_banana_along_it(tmp_path):
