@@ -15,6 +15,7 @@ message saying what is wrong and where: a surface from it would be distorted.
 from __future__ import annotations
 
 import importlib
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -82,7 +83,9 @@ def read_header(path: Path) -> DicomHeader | None:
         return None
     pydicom = _pydicom(path)
     try:
-        ds = pydicom.dcmread(path, stop_before_pixels=True, force=not marked, specific_tags=list(_HEADER_TAGS))
+        with warnings.catch_warnings():  # pydicom's about odd values in a header; what matters is said later
+            warnings.simplefilter("ignore")
+            ds = pydicom.dcmread(path, stop_before_pixels=True, force=not marked, specific_tags=list(_HEADER_TAGS))
         if not marked and "SOPClassUID" not in ds and "Rows" not in ds:
             return None  # force=True reads anything; without these it was not DICOM
         sop = str(ds.get("SOPClassUID", "") or getattr(getattr(ds, "file_meta", None), "MediaStorageSOPClassUID", ""))
@@ -179,6 +182,12 @@ def read_series(files: list[Path], *, name: Path) -> tuple[_RawVolume, dict]:
         ``spacing_source``, ``series_uid``, ``series_description``, ``n_slices``, ``modality``.
     """
     pydicom = _pydicom(name)
+    with warnings.catch_warnings():  # pydicom warns of values scanners write a little off the standard
+        warnings.simplefilter("ignore")
+        return _read_series(pydicom, files, name)
+
+
+def _read_series(pydicom, files: list[Path], name: Path) -> tuple[_RawVolume, dict]:
     slices = []
     for f in files:
         try:
