@@ -91,3 +91,24 @@ def test_nothing_but_a_plate_is_refused(tmp_path):
     results = extract_products(write_volume(tmp_path / "plate.mha", Volume(data, 1.0)), tmp_path / "s")
     assert len(results) == 1 and not results[0].ok
     assert results[0].error.startswith(str(tmp_path / "plate.mha") + ": ")
+
+
+@pytest.mark.parametrize("coarse", [False, True])
+def test_two_touching_balls_each_within_1_percent_also_told_apart_on_a_coarser_grid(monkeypatch, coarse):
+    """Two balls of 12 and 10 mm radius touching at one point; on a volume too large for the full grid the
+    products are told apart on one twice as coarse, and their boundary found again on the full one."""
+    from scipy.special import erf
+
+    from hortishape import extract
+    from hortishape.extract import extract_surface
+
+    if coarse:
+        monkeypatch.setattr(extract, "SPLIT_COARSE_VOXELS", 1000)
+    x, y, z = np.mgrid[:64, :40, :40] - np.array([0, 19.5, 19.5])[:, None, None, None]
+    centres, radii = (14.0, 36.0), (12.0, 10.0)
+    d = np.minimum(*(np.sqrt((x - c) ** 2 + y**2 + z**2) - r for c, r in zip(centres, radii)))
+    data = (1000 * 0.5 * (1 - erf(d / (0.7 * np.sqrt(2))))).astype(np.float32)
+    split = split_products(Volume(data, 1.0))
+    assert split.left_out == () and [round(float(c)) for c in split.centres[:, 0]] == [14, 36]
+    for product, r in zip(split.products, radii):
+        assert extract_surface(product).volume == pytest.approx(4 / 3 * np.pi * r**3, rel=0.01)

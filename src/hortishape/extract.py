@@ -2487,6 +2487,34 @@ def _attach_small(regions: np.ndarray, dist: np.ndarray, n: int, counts: np.ndar
     return target[regions]
 
 
+def _others_fine(crop: np.ndarray, coarse: np.ndarray, offset: np.ndarray, i: int, masked_ids: np.ndarray,
+                 level: float, spacing: np.ndarray, factor: int) -> np.ndarray:
+    """In one product's box, the voxels of the others and their rims, on the volume's own grid.
+
+    The products were told apart on a grid ``factor`` times coarser
+    (``coarse``: their labels over the box); where two meet, the boundary is
+    found again at full resolution: the labels a coarse voxel away from any
+    other seed a watershed of the box's own distance map.
+    """
+    from scipy import ndimage
+    from skimage.segmentation import watershed
+
+    up = coarse
+    for axis in range(3):
+        up = np.repeat(up, factor, axis=axis)
+    up = up[offset[0]:offset[0] + crop.shape[0], offset[1]:offset[1] + crop.shape[1],
+            offset[2]:offset[2] + crop.shape[2]]
+    size = 2 * factor + 1
+    seeds = np.where(ndimage.maximum_filter(up, size=size) == ndimage.minimum_filter(up, size=size), up, 0)
+    solid = ndimage.binary_fill_holes(crop > level)
+    dist = ndimage.distance_transform_edt(solid, sampling=spacing)
+    labels = watershed(-dist, seeds, mask=solid & ndimage.binary_dilation(up > 0, iterations=factor))
+    own = labels == i
+    others = np.isin(labels, masked_ids) & ~own
+    rim = ndimage.binary_dilation(others, iterations=2) & ~solid
+    return others | (rim & ~ndimage.binary_dilation(own, iterations=3))
+
+
 def _reading_order(centres: np.ndarray, sizes: np.ndarray) -> np.ndarray:
     """Rows along y (a new row where y jumps by more than half a product), then along x."""
     if len(centres) == 0:
@@ -2616,23 +2644,23 @@ def split_products(volume, *, level: float | None = None, name: str = "volume") 
     centres = centres[order]
     # the others' voxels and their rims (below the level, beside them) go to the background; a tray stays,
     # for extract_surface to drop as a support (the surface meets it where the product stands on it)
-    masked = np.isin(grown, keep + [i for i in range(1, n + 1) if edge[i]])
+    masked_ids = np.array(keep + [i for i in range(1, n + 1) if edge[i]])
+    masked = np.isin(grown, masked_ids)
     rim = ndimage.binary_dilation(masked, iterations=2) & ~solid
     background = levels.background
     products = []
     for i in keep:
         box = boxes[i - 1]
-        lo = np.array([max(0, factor * s.start - SPLIT_MARGIN_VOXELS) for s in box])
-        hi = np.array([min(vol.shape[a], factor * s.stop + SPLIT_MARGIN_VOXELS) for a, s in enumerate(box)])
+        lo = np.array([max(0, factor * (s.start - SPLIT_MARGIN_VOXELS)) for s in box])
+        hi = np.array([min(vol.shape[a], factor * (s.stop + SPLIT_MARGIN_VOXELS)) for a, s in enumerate(box)])
         crop = np.array(vol.data[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]])
         sub = tuple(slice(a // factor, -(-b // factor)) for a, b in zip(lo, hi))
-        own = grown[sub] == i
-        others = (masked[sub] & ~own) | (rim[sub] & ~ndimage.binary_dilation(own, iterations=3))
-        if factor > 1:
-            others = np.repeat(np.repeat(np.repeat(others, 2, 0), 2, 1), 2, 2)
-            off = lo - factor * np.array([s.start for s in sub])
-            others = others[off[0]:off[0] + crop.shape[0], off[1]:off[1] + crop.shape[1],
-                            off[2]:off[2] + crop.shape[2]]
+        if factor == 1:
+            own = grown[sub] == i
+            others = (masked[sub] & ~own) | (rim[sub] & ~ndimage.binary_dilation(own, iterations=3))
+        else:
+            others = _others_fine(crop, grown[sub], lo - factor * np.array([s.start for s in sub]), i, masked_ids,
+                                  levels.level, vol.spacing, factor)
         fill = np.array(background).astype(crop.dtype) if crop.dtype.kind != "f" else background
         crop[others] = fill
         products.append(Volume(crop, vol.spacing, vol.index_to_world([lo])[0], vol.direction,
