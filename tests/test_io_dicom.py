@@ -141,3 +141,16 @@ def test_one_slice_named_on_its_own_is_refused_with_what_to_pass(tmp_path):
     write_dicom_series(tmp_path / "scan", ball_ct(n=8), series_uid=ROOT + "40")
     with pytest.raises(VolumeError, match=_starts(tmp_path / "scan" / "IM0003", "pass the folder of the series")):
         read_volume(tmp_path / "scan" / "IM0003")
+
+
+def test_without_pydicom_a_survey_says_what_is_missing(tmp_path, monkeypatch):
+    import sys
+
+    write_dicom_series(tmp_path / "scan", ball_ct(n=8), series_uid=ROOT + "41")
+    (tmp_path / "README").write_text("no extension, not DICOM")
+    monkeypatch.setitem(sys.modules, "pydicom", None)
+    found = find_sources(tmp_path)
+    assert found.volumes == ()
+    reasons = dict(found.skipped)
+    assert "needs the optional dependency pydicom" in reasons[str(tmp_path / "scan")]  # its 8 slices, in one line
+    assert reasons[str(tmp_path / "README")] == "not a mesh, a volume or a DICOM file"

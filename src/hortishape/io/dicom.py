@@ -81,7 +81,12 @@ def read_header(path: Path) -> DicomHeader | None:
     marked = has_dicom_mark(path)
     if not marked and path.suffix.lower() not in _MAYBE_DICOM:
         return None
-    pydicom = _pydicom(path)
+    try:
+        pydicom = importlib.import_module("pydicom")
+    except ImportError:
+        if marked:  # a DICOM file that cannot be read here: say what is missing
+            raise
+        return None
     try:
         with warnings.catch_warnings():  # pydicom's about odd values in a header; what matters is said later
             warnings.simplefilter("ignore")

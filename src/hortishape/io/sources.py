@@ -171,7 +171,10 @@ def find_sources(paths: PathLike | Iterable[PathLike], *, meshes: bool = True,
         elif f.name.endswith((".truth.json", ".truth.npz")):
             return "the ground truth of a synthetic scan (hortishape synth)"
         else:
-            header = read_header(f)
+            try:
+                header = read_header(f)
+            except ImportError:
+                return 'a DICOM file; reading DICOM needs the optional dependency pydicom (pip install "hortishape[ct]")'
             if header is None:
                 return "not a mesh, a volume or a DICOM file"
             if not header.is_directory:
