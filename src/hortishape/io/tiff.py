@@ -160,7 +160,7 @@ def find_scanner_log(stack: Path) -> tuple[Path, np.ndarray] | None:
                  if f.stem.lower().startswith(stem) or stem.startswith(f.stem.lower())]
         if named:
             return named[0]
-        if len(found) == 1 and (place == stack or len(found) == 1):
+        if len(found) == 1:
             return found[0]
     return None
 
