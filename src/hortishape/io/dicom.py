@@ -144,6 +144,22 @@ def _multi_frame(path: Path, ds) -> tuple[_RawVolume, dict]:
                       np.array(image.GetDirection()).reshape(3, 3)), info
 
 
+def _check_length(ds, path: Path) -> None:
+    """Refuse uncompressed pixel data cut short (some pydicom versions pad it silently)."""
+    meta = getattr(ds, "file_meta", None)
+    syntax = getattr(meta, "TransferSyntaxUID", None)
+    if "PixelData" not in ds or syntax is None or getattr(syntax, "is_compressed", True):
+        return
+    try:
+        expected = (int(ds.Rows) * int(ds.Columns) * int(ds.get("NumberOfFrames", 1) or 1)
+                    * int(ds.get("SamplesPerPixel", 1) or 1) * int(ds.BitsAllocated) // 8)
+        got = len(ds.PixelData)
+    except (AttributeError, TypeError, ValueError):
+        return  # pydicom says what is missing when it decodes
+    if got < expected:
+        raise _ParseError(f"slice {path.name}: cannot decode its pixels (cut short: {got:,} of {expected:,} bytes)")
+
+
 def _pixels(ds, path: Path) -> tuple[np.ndarray, bool]:
     """A slice's values (rows, columns) and whether they are rescaled already.
 
@@ -151,6 +167,7 @@ def _pixels(ds, path: Path) -> tuple[np.ndarray, bool]:
     (a compression it has no decoder for), which applies the rescale itself.
     """
     rescaled = False
+    _check_length(ds, path)
     try:
         arr = ds.pixel_array
     except Exception as exc:  # noqa: BLE001 - truncated data, an unknown compression: say which slice
