@@ -2599,20 +2599,13 @@ def split_products(volume, *, level: float | None = None, name: str = "volume") 
     regions = _merge_regions(regions, dist)
     n = int(regions.max())
     counts = np.bincount(regions.ravel(), minlength=n + 1)
-    edge = np.zeros(n + 1, bool)
-    for axis in range(3):
-        for end in (0, -1):
-            edge[np.unique(np.take(regions, end, axis=axis))] = True
+    edge = _border_blocks(regions, n) > 0
     largest = max((counts[i] for i in range(1, n + 1) if not edge[i]), default=0)
     if largest == 0:
         raise VolumeError(f"{name}: every piece above the level touches the volume's edge: no whole product in it")
     # thin things: a stalk goes with the product it hangs from, a tray or plate reaching the edge with none
     thin, n_thin = ndimage.label(solid & ~opened, structure=np.ones((3, 3, 3)))
-    thin_edge = np.zeros(n_thin + 1, bool)
-    for axis in range(3):
-        for end in (0, -1):
-            thin_edge[np.unique(np.take(thin, end, axis=axis))] = True
-    thin_edge[0] = False
+    thin_edge = _border_blocks(thin, n_thin) > 0
     loose = thin_edge[thin]
     del thin
     regions = _attach_small(regions, dist, n, counts, edge, largest)

@@ -12,6 +12,12 @@ class _ParseError(Exception):
     """A format parser found broken content; the caller adds the file name."""
 
 
+def _first_line(exc: BaseException) -> str:
+    """The first line of a dependency's exception, for a one-line error (its type where it says nothing)."""
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
+
+
 class _MissingDependencyError(Exception):
     """An optional package is not installed; the message names it."""
 

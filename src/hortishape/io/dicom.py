@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import VolumeError
-from ._common import _ParseError, _RawVolume
+from ._common import _first_line, _ParseError, _RawVolume
 
 #: Extensions of files that may be DICOM slices without the 128-byte preamble
 #: and "DICM" mark (old ACR-NEMA style exports); other files need the mark.
@@ -177,8 +177,7 @@ def _pixels(ds, path: Path) -> tuple[np.ndarray, bool]:
             arr = arr.reshape(arr.shape[-2:]) if arr.ndim == 3 and arr.shape[0] == 1 else arr
             rescaled = True
         except Exception:  # noqa: BLE001
-            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            raise _ParseError(f"slice {path.name}: cannot decode its pixels ({first})") from None
+            raise _ParseError(f"slice {path.name}: cannot decode its pixels ({_first_line(exc)})") from None
     arr = np.asarray(arr)
     if arr.ndim != 2:
         what = "colour" if arr.ndim == 3 and arr.shape[-1] in (3, 4) else f"shape {arr.shape}"
@@ -215,8 +214,7 @@ def _read_series(pydicom, files: list[Path], name: Path) -> tuple[_RawVolume, di
         try:
             ds = pydicom.dcmread(f, force=not has_dicom_mark(f))
         except Exception as exc:  # noqa: BLE001 - a truncated or garbled header
-            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            raise _ParseError(f"slice {f.name}: cannot read its header ({first})") from None
+            raise _ParseError(f"slice {f.name}: cannot read its header ({_first_line(exc)})") from None
         slices.append((f, ds))
     if len(slices) == 1 and int(slices[0][1].get("NumberOfFrames", 1) or 1) > 1:
         return _multi_frame(files[0], slices[0][1])

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import VolumeError
-from ._common import _ParseError, _RawVolume
+from ._common import _first_line, _ParseError, _RawVolume
 
 TIFF_EXTENSIONS = (".tif", ".tiff")
 #: Files beside a stack that may hold its voxel size.
@@ -220,8 +220,7 @@ def read_tiff(path: Path) -> tuple[_RawVolume, dict]:
     except (VolumeError, _ParseError):
         raise
     except Exception as exc:  # noqa: BLE001 - tifffile's many errors on a broken file
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise _ParseError(f"cannot read it as TIFF ({first})") from None
+        raise _ParseError(f"cannot read it as TIFF ({_first_line(exc)})") from None
     data = data.transpose(2, 1, 0)  # (z, y, x) -> [x, y, z]
     if data.dtype.kind not in "biuf":
         raise _ParseError(f"voxel values of type {data.dtype} are not numbers")
