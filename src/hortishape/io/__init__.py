@@ -54,6 +54,7 @@ All writers are atomic: data go to a temporary file next to the target,
 which replaces the target only once complete.
 """
 
+from .dicom import write_dicom_series
 from .mesh_files import MeshData, is_mesh_file, mesh_formats, read_mesh, read_mesh_data, write_mesh
 from .point_files import PointCloud, read_points, write_points
 from .sources import Sources, VolumeSource, find_sources
@@ -74,6 +75,7 @@ __all__ = [
     "read_points",
     "read_volume",
     "volume_formats",
+    "write_dicom_series",
     "write_mesh",
     "write_points",
     "write_volume",
