@@ -453,7 +453,7 @@ class ShapeModel:
 
         Returns
         -------
-        (n, n_components_) float64 ndarray
+        (n, k) float64 ndarray, k = ``n_components_``
         """
         self._check_fitted()
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
@@ -496,7 +496,7 @@ class ShapeModel:
 
         Returns
         -------
-        (n, n_points_, 3) float64 ndarray
+        (n, p, 3) float64 ndarray, p = ``n_points_``
 
         Examples
         --------

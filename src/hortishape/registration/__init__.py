@@ -3,17 +3,17 @@
 One module per stage, :func:`register` (in ``core``) the coordinator that
 runs them in order:
 
-==================  ============================================================
-``config``          :class:`RegistrationConfig` and every heuristic constant
-``template``        the reference prepared once (:func:`prepare_reference`): fine, coarse and search levels
-``orientation``     step 1: candidate orientations, the stiff search that scores them, hints
-``warp``            step 1: the global polynomial warp ("initializing globally affine step")
-``correspondences`` step 2: normal-ray correspondences and the paper's three filters
-``elastic``         step 2: the rigid or affine step and the elastic step of eq. 8, its solvers
-``folds``           the closing step's and the end's fold checks and repair
-``result``          :class:`Registration`, its log and its :class:`RegistrationPlan`
-``batch``           :func:`register_many`, in worker processes
-==================  ============================================================
+=====================  ===============================================================================================
+``config``             :class:`RegistrationConfig` and every heuristic constant
+``template``           the reference prepared once (:func:`prepare_reference`): fine, coarse and search levels
+``orientation``        step 1: candidate orientations, the stiff search that scores them, hints
+``warp``               step 1: the global polynomial warp ("initializing globally affine step")
+``correspondences``    step 2: normal-ray correspondences and the paper's three filters
+``elastic``            step 2: the rigid or affine step and the elastic step of eq. 8, its solvers
+``folds``              the closing step's and the end's fold checks and repair
+``result``             :class:`Registration`, its log and its :class:`RegistrationPlan`
+``batch``              :func:`register_many`, in worker processes
+=====================  ===============================================================================================
 
 A reference (template) surface is deformed onto a target surface so that each
 reference vertex lands on the anatomically corresponding place of the target.
