@@ -66,25 +66,6 @@ def _public_objects():
     return list(seen.values())
 
 
-# Public functions written before examples were required of every one. The list only shrinks: a
-# new public function without an example fails the test below.
-WITHOUT_EXAMPLE_YET = {
-    "hortishape.cad.cad_formats", "hortishape.cad.cad_volume", "hortishape.cad.read_cad",
-    "hortishape.cad.render_deviation", "hortishape.correspond.find_correspondences", "hortishape.demo.run_demo",
-    "hortishape.demo.write_cad_examples", "hortishape.demo.write_samples", "hortishape.evaluate.geometric_error",
-    "hortishape.evaluate.metrics_csv", "hortishape.evaluate.metrics_dict", "hortishape.evaluate.write_evaluation",
-    "hortishape.extract.extract_file", "hortishape.extract.extract_files", "hortishape.extract.extract_products",
-    "hortishape.extract.find_volumes", "hortishape.io.write_points", "hortishape.partial.write_partial_fit",
-    "hortishape.pipeline.build_model", "hortishape.pipeline.choose_reference", "hortishape.pipeline.find_meshes",
-    "hortishape.pipeline.find_scans", "hortishape.pipeline.fit_scan", "hortishape.pipeline.register_files",
-    "hortishape.pipeline.template_fingerprint", "hortishape.pipeline.update_model",
-    "hortishape.report.plot_landmark_errors", "hortishape.report.write_report", "hortishape.statismo.read_model",
-    "hortishape.statismo.read_tree", "hortishape.statismo.write_model", "hortishape.synth.write_instance",
-    "hortishape.synth.read_truth", "hortishape.synth.write_population", "hortishape.synth.write_views",
-    "hortishape.units.scaled", "hortishape.view.viewer_html",
-}
-
-
 def _needs_example(obj) -> bool:
     # records a function returns are shown by that function's example; exceptions by the functions raising them
     if inspect.isclass(obj):
@@ -94,10 +75,8 @@ def _needs_example(obj) -> bool:
 
 def test_every_public_function_and_class_has_an_example():
     missing = sorted(name for name, obj in _public_objects()
-                     if _needs_example(obj) and ">>>" not in (inspect.getdoc(obj) or "") and name not in WITHOUT_EXAMPLE_YET)
+                     if _needs_example(obj) and ">>>" not in (inspect.getdoc(obj) or ""))
     assert not missing, f"public names without a docstring example: {missing}"
-    done = sorted(name for name, obj in _public_objects() if name in WITHOUT_EXAMPLE_YET and ">>>" in (inspect.getdoc(obj) or ""))
-    assert not done, f"these have an example now: take them off WITHOUT_EXAMPLE_YET: {done}"
 
 
 def test_every_public_name_has_a_docstring():

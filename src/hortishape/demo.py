@@ -56,6 +56,18 @@ def write_samples(model, out_dir, n: int, *, modes: int = 5, truncate: float = 3
     -------
     (list of Path, Path or None)
         The meshes and the picture.
+
+    Examples
+    --------
+    >>> import tempfile, trimesh
+    >>> import numpy as np
+    >>> from hortishape.model import ShapeModel
+    >>> s = trimesh.creation.icosphere(subdivisions=2, radius=30.0)
+    >>> shapes = s.vertices * np.random.default_rng(0).uniform(0.8, 1.2, (6, 1, 3))
+    >>> meshes, picture = write_samples(ShapeModel().fit(shapes, s.faces), tempfile.mkdtemp(), 2, random_state=0,
+    ...                                 picture=False)
+    >>> [p.name for p in meshes], picture
+    (['sample_000.ply', 'sample_001.ply'], None)
     """
     from .io import write_mesh
 
@@ -80,6 +92,17 @@ def write_cad_examples(model, out_dir, *, grid: int = 32) -> list[Path]:
     ``out_dir``; without OpenCascade (the ``cad`` extra) only the JSON files.
     The operator is fitted once (:class:`hortishape.cad.BSplineModel`); the
     mode's control points come from it without refitting.
+
+    Examples
+    --------
+    >>> import tempfile, trimesh
+    >>> import numpy as np
+    >>> from hortishape.model import ShapeModel
+    >>> s = trimesh.creation.icosphere(subdivisions=3, radius=30.0)
+    >>> shapes = s.vertices * np.random.default_rng(0).uniform(0.8, 1.2, (6, 1, 3))
+    >>> model = ShapeModel().fit(shapes, s.faces)
+    >>> sorted(p.name for p in write_cad_examples(model, tempfile.mkdtemp(), grid=8))
+    ['mean.json', 'mean.step', 'mode1_plus3sd.json', 'mode1_plus3sd.step']
     """
     from .cad import BSplineModel, write_cad
     from .errors import HortishapeError
@@ -126,6 +149,14 @@ def run_demo(
     Returns
     -------
     DemoResult
+
+    Examples
+    --------
+    The demo's whole run takes minutes; ``hortishape demo`` runs it:
+
+    >>> result = run_demo("hortishape-demo", n=30)   # doctest: +SKIP
+    >>> result.report                                 # doctest: +SKIP
+    PosixPath('hortishape-demo/evaluation/report.html')
     """
     from .evaluate import evaluate_model
     from .model import ShapeModel

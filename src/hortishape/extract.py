@@ -2717,6 +2717,19 @@ def find_volumes(folder) -> list[VolumeSource]:
     ------
     HortishapeError
         If ``folder`` is not a folder.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> from hortishape.io import Volume, write_volume
+    >>> folder = Path(tempfile.mkdtemp())
+    >>> _ = write_volume(folder / "b.mha", Volume(np.zeros((4, 4, 4)), spacing=0.5))
+    >>> (folder / "study").mkdir()
+    >>> _ = write_volume(folder / "study" / "a.mha", Volume(np.zeros((4, 4, 4)), spacing=0.5))
+    >>> _ = (folder / "notes.txt").write_text("not a scan")
+    >>> [v.name for v in find_volumes(folder)]
+    ['a', 'b']
     """
     folder = Path(folder)
     if not folder.is_dir():
@@ -2947,6 +2960,19 @@ def extract_file(source, out_dir, *, level: float | None = None, smoothing: int 
         (:data:`hortishape.units.PRODUCT_EXTENT_MM`,
         :data:`hortishape.units.PRODUCT_VOLUME_ML`), with the voxel size
         that would make it one.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> from hortishape import synth
+    >>> from hortishape.io import write_volume
+    >>> folder = Path(tempfile.mkdtemp())
+    >>> apple = synth.make_instance("apple", random_state=1, volume=True, n_vertices=20000)
+    >>> _ = write_volume(folder / "apple.mha", apple.volume)
+    >>> r = extract_file(folder / "apple.mha", folder / "surfaces", picture=False)
+    >>> r.ok, Path(r.mesh).name
+    (True, 'apple.ply')
     """
     source = source if isinstance(source, VolumeSource) else Path(source)
     location = source.path if isinstance(source, VolumeSource) else source
@@ -2995,6 +3021,18 @@ def extract_products(source, out_dir, *, level: float | None = None, smoothing: 
     list of ExtractResult
         One per product, in order; the first carries ``left_out``. Never
         raises for a bad volume: one result with ``ok`` False says why.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> from hortishape import synth
+    >>> from hortishape.io import write_volume
+    >>> folder = Path(tempfile.mkdtemp())
+    >>> tray = synth.make_tray("apple", 2, random_state=3)
+    >>> _ = write_volume(folder / "tray.mha", tray.volume)
+    >>> [Path(r.mesh).name for r in extract_products(folder / "tray.mha", folder / "surfaces", picture=False)]
+    ['tray_1.ply', 'tray_2.ply']
     """
     source = source if isinstance(source, VolumeSource) else Path(source)
     location = source.path if isinstance(source, VolumeSource) else source
@@ -3153,6 +3191,20 @@ def extract_files(
         share a stem (their outputs would collide).
     ValueError
         If an option is out of range.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> from hortishape import synth
+    >>> from hortishape.io import write_volume
+    >>> folder = Path(tempfile.mkdtemp())
+    >>> for seed in (1, 2):
+    ...     pear = synth.make_instance("pear", random_state=seed, volume=True, n_vertices=20000)
+    ...     _ = write_volume(folder / f"pear_{seed}.mha", pear.volume)
+    >>> results = extract_files(find_volumes(folder), folder / "surfaces", picture=False)
+    >>> [(r.ok, Path(r.mesh).name) for r in results]
+    [(True, 'pear_1.ply'), (True, 'pear_2.ply')]
     """
     _check_options(smoothing, target_vertices, support_radius)
     out = Path(out_dir)

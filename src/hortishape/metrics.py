@@ -804,6 +804,19 @@ def geometric_error(
     -------
     GeometricError or None
         None when no scan could be read.
+
+    Examples
+    --------
+    >>> import tempfile, trimesh
+    >>> from pathlib import Path
+    >>> from hortishape.io import write_mesh
+    >>> from hortishape.mesh import Mesh
+    >>> ball = trimesh.creation.icosphere(subdivisions=4, radius=30.0)
+    >>> scan = write_mesh(Path(tempfile.mkdtemp()) / "ball.ply", Mesh(ball.vertices, ball.faces))
+    >>> coarse = trimesh.creation.icosphere(subdivisions=2, radius=30.5)   # registered 0.5 mm outside
+    >>> g = geometric_error(coarse.vertices[None], coarse.faces, ["ball"], [scan])
+    >>> round(float(g.mean_mm), 2)
+    0.5
     """
     from .io import read_mesh
     from .surface import closest_points

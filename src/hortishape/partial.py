@@ -1166,6 +1166,18 @@ def write_partial_fit(fit: PartialFit, out_dir, stem: str, *, points: npt.ArrayL
     -------
     dict of str to Path
         ``"mesh"``, ``"json"``, ``"sd"``, ``"picture"``.
+
+    Examples
+    --------
+    >>> import tempfile, trimesh
+    >>> from hortishape.model import ShapeModel
+    >>> s = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
+    >>> shapes = s.vertices * (40.0 + np.random.default_rng(0).normal(0.0, 2.0, (8, 1, 3)))
+    >>> model = ShapeModel().fit(shapes, s.faces)
+    >>> seen = (s.vertices * [42.0, 39.0, 41.0])[s.vertices[:, 2] > 0.1]
+    >>> files = write_partial_fit(fit_partial(model, seen), tempfile.mkdtemp(), "ball", points=seen)
+    >>> sorted(p.name for p in files.values())
+    ['ball.json', 'ball.ply', 'ball.png', 'ball.sd.npy']
     """
     import json
     from pathlib import Path

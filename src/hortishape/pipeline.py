@@ -128,6 +128,19 @@ def find_meshes(folder) -> list[Path]:
     ------
     HortishapeError
         If ``folder`` is not a folder or holds no mesh file.
+
+    Examples
+    --------
+    >>> import tempfile, trimesh
+    >>> from pathlib import Path
+    >>> from hortishape.io import write_mesh
+    >>> from hortishape.mesh import Mesh
+    >>> folder = Path(tempfile.mkdtemp())
+    >>> ball = trimesh.creation.icosphere(subdivisions=2, radius=30.0)
+    >>> for name in ("b.stl", "a.ply"):
+    ...     _ = write_mesh(folder / name, Mesh(ball.vertices, ball.faces))
+    >>> [p.name for p in find_meshes(folder)]
+    ['a.ply', 'b.stl']
     """
     folder = Path(folder)
     if not folder.is_dir():
@@ -173,6 +186,17 @@ def find_scans(folder, out_dir, *, n_jobs: int | None = None, strict: bool = Fal
     HortishapeError
         If ``folder`` is not a folder or holds neither meshes nor volumes; with
         ``strict``, for the first volume that fails.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> from hortishape import synth
+    >>> folder = Path(tempfile.mkdtemp())
+    >>> _ = synth.write_population("pear", 2, folder / "scans", random_state=1, n_vertices=3000, n_jobs=1)
+    >>> paths, failed, passed_over = find_scans(folder / "scans", folder / "out", n_jobs=1)
+    >>> [p.name for p in paths], failed, len(passed_over)   # the ground-truth files are passed over
+    (['pear_000.ply', 'pear_001.ply'], [], 4)
     """
     from .extract import extract_files
     from .io import find_sources, volume_formats
@@ -206,6 +230,17 @@ def template_fingerprint(template: Template, config: RegistrationConfig, *, scal
     release may change what a configuration does: a build resumed after an
     upgrade registers its scans again) and the registration's heuristic
     constants (:func:`hortishape.registration.heuristics`).
+
+    Examples
+    --------
+    >>> import trimesh
+    >>> from hortishape.mesh import Mesh
+    >>> from hortishape.registration import RegistrationConfig, prepare_reference
+    >>> ball = trimesh.creation.icosphere(subdivisions=3, radius=30.0)
+    >>> template = prepare_reference(Mesh(ball.vertices, ball.faces))
+    >>> a = template_fingerprint(template, RegistrationConfig())
+    >>> a == template_fingerprint(template, RegistrationConfig()), a == template_fingerprint(template, RegistrationConfig(n_iterations=12))
+    (True, False)
     """
     import hortishape
 
@@ -463,6 +498,21 @@ def register_files(
     HortishapeError
         With ``strict=True``, for the first scan that fails; or if two scans
         share a stem (their outputs would collide).
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> from hortishape import synth
+    >>> from hortishape.registration import RegistrationConfig
+    >>> folder = Path(tempfile.mkdtemp())
+    >>> _ = synth.write_population("apple", 4, folder / "scans", random_state=1, n_vertices=3000, n_jobs=1)
+    >>> quick = RegistrationConfig(n_iterations=12)   # fewer iterations than the paper's, for a quick example
+    >>> from hortishape.io import read_mesh
+    >>> scans = find_meshes(folder / "scans")
+    >>> results = register_files(read_mesh(scans[0]), scans[1:], folder / "registered", n_jobs=1, config=quick)
+    >>> [(r.name, r.ok) for r in results]
+    [('apple_001', True), ('apple_002', True), ('apple_003', True)]
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -627,6 +677,20 @@ def choose_reference(checks: Sequence[ScanCheck]) -> str:
     A scan with holes would bring its patches, guessed surface, into every
     registration: the closed scan nearest that size is taken, or where all
     have holes, the nearest of those with the least.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> from hortishape import synth
+    >>> folder = Path(tempfile.mkdtemp())
+    >>> _ = synth.write_population("apple", 3, folder, random_state=1, n_vertices=3000, n_jobs=1)
+    >>> checks = check_scans(find_meshes(folder))
+    >>> [round(c.size) for c in checks]                      # the three apples' sizes, mm
+    [69, 68, 73]
+    >>> Path(choose_reference(checks)).name
+    'apple_000.ply'
+
     """
     ok = [c for c in checks if c.ok]
     if not ok:
@@ -790,6 +854,19 @@ def build_model(
     ------
     HortishapeError
         If fewer than 3 scans are usable, or with ``strict`` at the first bad scan.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> from hortishape import synth
+    >>> from hortishape.registration import RegistrationConfig
+    >>> folder = Path(tempfile.mkdtemp())
+    >>> _ = synth.write_population("apple", 4, folder / "scans", random_state=1, n_vertices=3000, n_jobs=1)
+    >>> quick = RegistrationConfig(n_iterations=12)   # fewer iterations than the paper's, for a quick example
+    >>> result = build_model(folder / "scans", folder / "model", n_points=800, n_jobs=1, config=quick)
+    >>> result.names, result.model_path.name, len(result.explained_variance)
+    (('apple_000', 'apple_001', 'apple_002', 'apple_003'), 'model.h5', 3)
     """
     from .procrustes import generalized_procrustes
 
@@ -1155,6 +1232,22 @@ def update_model(
         If ``model_dir`` is not a built model folder, ``out_dir`` is
         ``model_dir``, or no new scan could be registered (with ``strict``, at
         the first that fails).
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> from hortishape import synth
+    >>> from hortishape.registration import RegistrationConfig
+    >>> folder = Path(tempfile.mkdtemp())
+    >>> _ = synth.write_population("apple", 4, folder / "scans", random_state=1, n_vertices=3000, n_jobs=1)
+    >>> quick = RegistrationConfig(n_iterations=12)   # fewer iterations than the paper's, for a quick example
+    >>> _ = build_model(folder / "scans", folder / "model", n_points=800, n_jobs=1, config=quick)
+    >>> new = synth.make_instance("apple", random_state=9, n_vertices=3000, name="apple_new")
+    >>> _ = synth.write_instance(new, folder / "new")
+    >>> result = update_model(folder / "model", folder / "new", folder / "model-2", n_jobs=1, config=quick)
+    >>> result.names[-1], len(result.names)
+    ('apple_new', 5)
     """
     start = time.perf_counter()
     src, layout = ModelDir(model_dir), ModelDir(out_dir)
@@ -1328,6 +1421,24 @@ def fit_scan(model, scan: Mesh, *, modes: int | None = None,
     Returns
     -------
     ScanFit
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> from hortishape import synth
+    >>> from hortishape.registration import RegistrationConfig
+    >>> folder = Path(tempfile.mkdtemp())
+    >>> _ = synth.write_population("apple", 4, folder / "scans", random_state=1, n_vertices=3000, n_jobs=1)
+    >>> quick = RegistrationConfig(n_iterations=12)   # fewer iterations than the paper's, for a quick example
+    >>> from hortishape.io import read_mesh
+    >>> from hortishape.model import ShapeModel
+    >>> model = ShapeModel.load(build_model(folder / "scans", folder / "model", n_points=800, n_jobs=1,
+    ...                                     config=quick).model_path)
+    >>> new = synth.make_instance("apple", random_state=9, n_vertices=3000)
+    >>> fit = fit_scan(model, new.mesh, config=quick)
+    >>> fit.coefficients.shape, bool(fit.mahalanobis < 10)
+    ((3,), True)
     """
     from .model import fit_pose_and_shape
     from .surface import closest_points

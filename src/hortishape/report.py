@@ -539,6 +539,17 @@ def plot_landmark_errors(t: "LandmarkTransfer", names, path: str | os.PathLike) 
     Returns
     -------
     pathlib.Path
+
+    Examples
+    --------
+    >>> import tempfile, trimesh
+    >>> from hortishape.metrics import transfer_landmarks
+    >>> s = trimesh.creation.icosphere(subdivisions=2, radius=30.0)
+    >>> shapes = s.vertices * np.random.default_rng(0).uniform(0.9, 1.1, (4, 1, 3))
+    >>> tips = shapes[:, np.argmax(s.vertices[:, 2])][:, None]            # the top of each, marked by hand
+    >>> t = transfer_landmarks(shapes, s.faces, tips, names=["top"])
+    >>> plot_landmark_errors(t, [f"s{i}" for i in range(4)], tempfile.mkdtemp() + "/landmarks.png").suffix
+    '.png'
     """
     errs = np.asarray(t.errors_mm, dtype=float)
     columns = [errs[:, j] for j in range(errs.shape[1])]
@@ -742,6 +753,18 @@ def write_report(ev: "Evaluation", path: str | os.PathLike) -> Path:
     Returns
     -------
     pathlib.Path
+
+    Examples
+    --------
+    >>> import tempfile, trimesh
+    >>> from hortishape.evaluate import evaluate_shapes
+    >>> from hortishape.model import ShapeModel
+    >>> s = trimesh.creation.icosphere(subdivisions=2, radius=30.0)
+    >>> shapes = s.vertices * np.random.default_rng(0).uniform(0.8, 1.2, (6, 1, 3))
+    >>> ev = evaluate_shapes(ShapeModel().fit(shapes, s.faces), shapes, shapes, s.faces, names=[f"s{i}" for i in range(6)], n_samples=20)
+    >>> page = write_report(ev, tempfile.mkdtemp() + "/report.html")
+    >>> page.read_text(encoding="utf-8").startswith("<!DOCTYPE html>")
+    True
     """
     import datetime
     import html
@@ -947,6 +970,17 @@ def metrics_dict(ev: Evaluation) -> dict:
     ``specificity_se_sq`` (the paper's eqs. 15-16, squared norms, mm^2) and
     ``variance_mm2`` (each mode's variance). Then the geometric error,
     landmarks, dimensions and settings.
+
+    Examples
+    --------
+    >>> import trimesh
+    >>> from hortishape.evaluate import evaluate_shapes
+    >>> from hortishape.model import ShapeModel
+    >>> s = trimesh.creation.icosphere(subdivisions=2, radius=30.0)
+    >>> shapes = s.vertices * np.random.default_rng(0).uniform(0.8, 1.2, (6, 1, 3))
+    >>> d = metrics_dict(evaluate_shapes(ShapeModel().fit(shapes, s.faces), shapes, shapes, s.faces, names=[f"s{i}" for i in range(6)], n_samples=20))
+    >>> d["modes"], d["n_instances"]
+    ([1, 2, 3], 6)
     """
     c, g, s, d = ev.compactness, ev.generalization, ev.specificity, ev.dimensions
     out: dict = {
@@ -1027,7 +1061,19 @@ def metrics_dict(ev: Evaluation) -> dict:
 
 
 def metrics_csv(ev: Evaluation) -> str:
-    """The content of ``metrics.csv``: one row per m, the measures as columns."""
+    """The content of ``metrics.csv``: one row per m, the measures as columns.
+
+    Examples
+    --------
+    >>> import trimesh
+    >>> from hortishape.evaluate import evaluate_shapes
+    >>> from hortishape.model import ShapeModel
+    >>> s = trimesh.creation.icosphere(subdivisions=2, radius=30.0)
+    >>> shapes = s.vertices * np.random.default_rng(0).uniform(0.8, 1.2, (6, 1, 3))
+    >>> ev = evaluate_shapes(ShapeModel().fit(shapes, s.faces), shapes, shapes, s.faces, names=[f"s{i}" for i in range(6)], n_samples=20)
+    >>> metrics_csv(ev).splitlines()[0].split(",")[:3]
+    ['modes', 'compactness', 'variance_mm2']
+    """
     c, g, s = ev.compactness, ev.generalization, ev.specificity
     cols = {
         "modes": c.modes, "compactness": c.ratio, "variance_mm2": c.variance_mm2,
@@ -1111,6 +1157,19 @@ def write_evaluation(
     -------
     Evaluation
         ``ev`` with ``files``, ``seconds`` and ``timings`` filled in.
+
+    Examples
+    --------
+    >>> import tempfile, trimesh
+    >>> from hortishape.evaluate import evaluate_shapes
+    >>> from hortishape.model import ShapeModel
+    >>> s = trimesh.creation.icosphere(subdivisions=2, radius=30.0)
+    >>> shapes = s.vertices * np.random.default_rng(0).uniform(0.8, 1.2, (6, 1, 3))
+    >>> model = ShapeModel().fit(shapes, s.faces)
+    >>> ev = write_evaluation(evaluate_shapes(model, shapes, shapes, s.faces, names=[f"s{i}" for i in range(6)], n_samples=20), model, s.faces,
+    ...                       tempfile.mkdtemp(), viewer=False)
+    >>> sorted(ev.files)[:3], ev.files["report"].name
+    (['compactness_png', 'generalization_png', 'metrics_csv'], 'report.html')
     """
     from dataclasses import replace
 

@@ -197,6 +197,16 @@ def read_tree(path: str | os.PathLike) -> H5Tree:
     ------
     HortishapeError
         If the file is missing, unreadable, or in neither form.
+
+    Examples
+    --------
+    >>> import tempfile, trimesh
+    >>> from hortishape.model import ShapeModel
+    >>> s = trimesh.creation.icosphere(subdivisions=2, radius=30.0)
+    >>> shapes = s.vertices * np.random.default_rng(0).uniform(0.8, 1.2, (6, 1, 3))
+    >>> path = ShapeModel().fit(shapes, s.faces).save(tempfile.mkdtemp() + "/model.json")
+    >>> "/model" in read_tree(path).groups
+    True
     """
     p = Path(path)
     form = model_format(p)
@@ -464,6 +474,17 @@ def write_model(data: ModelData, path: str | os.PathLike, form: str | None = Non
     Returns
     -------
     pathlib.Path
+
+    Examples
+    --------
+    >>> import tempfile, trimesh
+    >>> from hortishape.model import ShapeModel
+    >>> s = trimesh.creation.icosphere(subdivisions=2, radius=30.0)
+    >>> shapes = s.vertices * np.random.default_rng(0).uniform(0.8, 1.2, (6, 1, 3))
+    >>> data = read_model(ShapeModel().fit(shapes, s.faces).save(tempfile.mkdtemp() + "/model.h5"))
+    >>> path = write_model(data, tempfile.mkdtemp() + "/for-scalismo.json")   # HDF5-JSON, by its name
+    >>> bool(np.allclose(read_model(path).mean, data.mean))
+    True
     """
     p = Path(path)
     form = form or ("json" if p.suffix.lower() == ".json" else "hdf5")
@@ -595,6 +616,17 @@ def read_model(path: str | os.PathLike) -> ModelData:
     ------
     HortishapeError
         If the file is missing, in neither form, or not a usable model.
+
+    Examples
+    --------
+    >>> import tempfile, trimesh
+    >>> from hortishape.model import ShapeModel
+    >>> s = trimesh.creation.icosphere(subdivisions=2, radius=30.0)
+    >>> shapes = s.vertices * np.random.default_rng(0).uniform(0.8, 1.2, (6, 1, 3))
+    >>> path = ShapeModel().fit(shapes, s.faces).save(tempfile.mkdtemp() + "/model.h5")
+    >>> data = read_model(path)
+    >>> data.mean.shape, data.components.shape[0]
+    ((162, 3), 3)
     """
     p = Path(path)
     tree = read_tree(p)

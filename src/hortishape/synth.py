@@ -1176,6 +1176,14 @@ def write_instance(instance: SyntheticInstance, out_dir, *, random_seed: int | N
     -------
     pathlib.Path
         The mesh file.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> apple = make_instance("apple", random_state=1, n_vertices=3000)
+    >>> path = write_instance(apple, tempfile.mkdtemp())
+    >>> path.name, sorted(p.name for p in path.parent.iterdir())
+    ('apple.ply', ['apple.ply', 'apple.truth.json', 'apple.truth.npz'])
     """
     from ._files import atomic_path
     from .io import write_mesh, write_volume
@@ -1312,6 +1320,13 @@ def write_views(mesh_path, n_views: int, *, pitch: float = 1.0, noise: float = 0
     -------
     list of pathlib.Path
         The point-cloud files.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> path = write_instance(make_instance("apple", random_state=1, n_vertices=3000), tempfile.mkdtemp())
+    >>> [p.name for p in write_views(path, 2, random_state=0)]
+    ['apple.view0.ply', 'apple.view1.ply']
     """
     from ._files import atomic_text
     from .io import read_mesh, write_points
@@ -1344,6 +1359,14 @@ def read_truth(mesh_path) -> dict:
     ------
     HortishapeError
         If the ground-truth files are missing.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> apple = make_instance("apple", random_state=1, n_vertices=3000)
+    >>> truth = read_truth(write_instance(apple, tempfile.mkdtemp()))
+    >>> sorted(truth["landmarks"]), truth["canonical"].shape == apple.mesh.vertices.shape
+    (['bottom', 'stalk_tip'], True)
     """
     json_path, npz_path = _truth_paths(Path(mesh_path))
     if not json_path.is_file() or not npz_path.is_file():
@@ -1430,6 +1453,13 @@ def write_population(
     -------
     list of dict
         ``name``, ``n_vertices`` and ``dimensions_mm`` per instance, in order.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> rows = write_population("zucchini", 2, tempfile.mkdtemp(), random_state=3, n_vertices=3000, n_jobs=1)
+    >>> [r["name"] for r in rows]
+    ['zucchini_000', 'zucchini_001']
     """
     if product not in PRODUCTS:
         raise HortishapeError(f"unknown product {product!r}: choose from {', '.join(PRODUCTS)}")

@@ -138,7 +138,15 @@ def check_size(vertices, *, name: str = "surface", scale: float = 1.0, option: s
 
 
 def scaled(mesh: Mesh, scale: float) -> Mesh:
-    """``mesh`` with its vertices multiplied by ``scale`` (a new mesh; the same one for 1)."""
+    """``mesh`` with its vertices multiplied by ``scale`` (a new mesh; the same one for 1).
+
+    Examples
+    --------
+    >>> from hortishape.mesh import Mesh
+    >>> in_metres = Mesh([[0, 0, 0], [0.08, 0, 0], [0, 0.08, 0], [0, 0, 0.08]], [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    >>> float(scaled(in_metres, 1000.0).vertices.max())
+    80.0
+    """
     return mesh if scale == 1.0 else mesh.with_vertices(mesh.vertices * scale)
 
 

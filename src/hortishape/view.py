@@ -195,6 +195,16 @@ def viewer_html(
         The page.
     info : dict
         ``n_modes``, ``quantization_mm``, ``colourings`` and ``landmarks``.
+
+    Examples
+    --------
+    >>> import trimesh
+    >>> from hortishape.model import ShapeModel
+    >>> s = trimesh.creation.icosphere(subdivisions=2, radius=30.0)
+    >>> shapes = s.vertices * np.random.default_rng(0).uniform(0.8, 1.2, (6, 1, 3))
+    >>> html, info = viewer_html(ShapeModel().fit(shapes, s.faces))
+    >>> html.startswith("<!DOCTYPE html>"), info["n_modes"]
+    (True, 3)
     """
     model._check_fitted()
     if model.faces_ is None:

@@ -112,6 +112,15 @@ def render_deviation(
     Returns
     -------
     pathlib.Path
+
+    Examples
+    --------
+    >>> import tempfile, trimesh
+    >>> from hortishape.cad import BSplineFitter
+    >>> s = trimesh.creation.icosphere(subdivisions=3, radius=40.0)
+    >>> surface = BSplineFitter(grid=8).fit(s.vertices, s.faces).surface(s.vertices)
+    >>> render_deviation(surface, s.vertices, s.faces, tempfile.mkdtemp() + "/ball.png").suffix
+    '.png'
     """
     import igl
 

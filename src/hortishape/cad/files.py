@@ -19,7 +19,13 @@ _INSTALL_HINT = "pip install 'hortishape[cad]' (the cadquery-ocp-novtk package)"
 
 
 def cad_formats() -> tuple[str, ...]:
-    """File extensions :func:`write_cad` and :func:`read_cad` understand."""
+    """File extensions :func:`write_cad` and :func:`read_cad` understand.
+
+    Examples
+    --------
+    >>> cad_formats()
+    ('.step', '.stp', '.iges', '.igs', '.json')
+    """
     return tuple(_CAD_SUFFIXES)
 
 
@@ -272,6 +278,16 @@ def read_cad(path: str | os.PathLike) -> BSplineSurface:
         Missing or unreadable file, no B-spline face, a surface hortishape does
         not write (not bicubic, not periodic in ``u``, non-uniform knots), or
         OpenCascade missing.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> cp = np.zeros((4, 4, 3))
+    >>> cp[..., 2] = [-30.0, -20.0, 20.0, 30.0]
+    >>> cp[:, 1:3, :2] = 30.0 * np.array([[1, 0], [0, 1], [-1, 0], [0, -1]])[:, None]
+    >>> surface = read_cad(write_cad(tempfile.mkdtemp() + "/egg.step", BSplineSurface(cp)))
+    >>> surface.control_points.shape, bool(np.allclose(surface.control_points, cp))
+    ((4, 4, 3), True)
     """
     from .._files import check_exists, check_not_empty
 
@@ -302,6 +318,17 @@ def cad_volume(path: str | os.PathLike) -> float:
     ------
     HortishapeError
         If the file cannot be read or its faces do not close a volume.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from hortishape.cad import BSplineFitter
+    >>> import trimesh
+    >>> s = trimesh.creation.icosphere(subdivisions=4, radius=40.0)
+    >>> path = write_cad(tempfile.mkdtemp() + "/ball.step", BSplineFitter(grid=16).fit(s.vertices, s.faces).surface(s.vertices))
+    >>> ml = cad_volume(path) / 1000.0
+    >>> bool(abs(ml - 4.0 / 3.0 * np.pi * 40.0**3 / 1000.0) < 0.01 * ml)   # a 40 mm ball, within 1 %
+    True
     """
     target = Path(path)
     kind = _cad_kind(target)

@@ -103,6 +103,14 @@ def write_points(path: PathLike, points: npt.ArrayLike, *, normals: npt.ArrayLik
     ------
     MeshError
         Not ``.ply``, arrays of the wrong shape or not finite, or the file cannot be written.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> points = np.random.default_rng(0).normal(size=(100, 3)) * 30.0
+    >>> cloud = read_points(write_points(tempfile.mkdtemp() + "/seen.ply", points))
+    >>> cloud.points.shape, cloud.normals is None, cloud.faces.shape
+    ((100, 3), True, (0, 3))
     """
     p = Path(path)
     if p.suffix.lower() != ".ply":

@@ -472,6 +472,17 @@ def find_correspondences(
     Returns
     -------
     Correspondences
+
+    Examples
+    --------
+    >>> import trimesh
+    >>> from hortishape.surface import vertex_normals
+    >>> small = trimesh.creation.icosphere(3, radius=10.0)
+    >>> big = trimesh.creation.icosphere(4, radius=12.0)
+    >>> target = prepare_target(Mesh(big.vertices, big.faces))
+    >>> c = find_correspondences(small.vertices, small.faces, vertex_normals(small.vertices, small.faces), target)
+    >>> bool(c.found.all()), round(float(np.median(c.distances)), 1)
+    (True, 2.0)
     """
     tgt = target
     sv = vertices if sources is None else np.take(vertices, sources, axis=0)
