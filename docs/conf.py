@@ -64,6 +64,8 @@ sphinx_gallery_conf = {
     "image_scrapers": ("matplotlib",),
     "min_reported_time": 1,
     "capture_repr": (),
+    # its pages load jQuery from a CDN: an error offline, and the figures are not for users
+    "write_computation_times": False,
 }
 
 # -- the API pages, one per public module ----------------------------------------------------------
