@@ -1185,3 +1185,27 @@ def test_binary_ply_written_in_blocks_reads_back_whole(tmp_path, monkeypatch):
     np.testing.assert_array_equal(data.mesh.faces, faces)
     np.testing.assert_array_equal(data.vertex_colors, colors)
     np.testing.assert_array_equal(data.vertex_scalars["e"], error)
+
+
+@pytest.mark.parametrize("binary", [True, False])
+def test_a_legacy_vtk_file_with_a_damaged_cell_count_is_refused_not_crashed_on(tmp_path, binary):
+    # VTK's legacy reader trusts the counts and reads past its buffer (a crash, VTK 9.7): the cells are
+    # checked first, in a child process here so that a crash fails this test instead of the run
+    import subprocess
+    import sys
+
+    pytest.importorskip("vtk")
+    mesh = Mesh([[0, 0, 0], [0, 10, 0], [10, 0, 0], [0, 0, 10]], [[0, 1, 2], [0, 2, 3], [0, 3, 1], [2, 1, 3]])
+    path = write_mesh(tmp_path / "m.vtk", mesh, binary=binary)
+    data = bytearray(path.read_bytes())
+    at = data.index(b"POLYGONS 4 16\n") + len(b"POLYGONS 4 16\n")
+    if binary:
+        data[at + 2] = 0xFF  # the first cell's point count, big-endian int32: 3 -> 65283
+    else:
+        data[at] = ord("9")  # "3 0 1 2" -> "9 0 1 2"
+    path.write_bytes(bytes(data))
+    code = ("from hortishape.io import read_mesh\nfrom hortishape.errors import MeshError\n"
+            f"try:\n    read_mesh({str(path)!r})\nexcept MeshError as e:\n    print(e)\n")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.startswith(f"{path}: not a valid .vtk file (POLYGONS: ")

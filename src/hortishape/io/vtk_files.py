@@ -67,9 +67,137 @@ def _vtk_cells(cells) -> tuple[np.ndarray, np.ndarray]:
     return np.diff(offsets), connectivity
 
 
+_LEGACY_SIZES = {"bit": None, "char": 1, "unsigned_char": 1, "short": 2, "unsigned_short": 2, "int": 4,
+                 "unsigned_int": 4, "long": 8, "unsigned_long": 8, "float": 4, "double": 8,
+                 "vtktypeint64": 8, "vtktypeuint64": 8, "vtkidtype": 8}
+_LEGACY_CELLS = ("VERTICES", "LINES", "POLYGONS", "TRIANGLE_STRIPS", "CELLS")
+
+
+class _Legacy:
+    """A cursor over a legacy VTK file, ASCII or binary, for the structure check."""
+
+    def __init__(self, data: bytes) -> None:
+        self.data, self.pos = data, 0
+        self.binary = False
+
+    def line(self, *, needed: bool = True) -> str:
+        """The next line that is not blank; "" at the end of the file where ``needed`` is False."""
+        while self.pos < len(self.data):
+            end = self.data.find(b"\n", self.pos)
+            end = len(self.data) if end < 0 else end
+            text = self.data[self.pos:end].decode("latin-1").strip()
+            self.pos = end + 1
+            if text:
+                return text
+        if needed:
+            raise _ParseError("the file ends before its data")
+        return ""
+
+    def numbers(self, count: int, kind: str, what: str) -> np.ndarray:
+        size = _LEGACY_SIZES.get(kind.lower())
+        if size is None:
+            raise _ParseError(f"{what}: unknown data type {kind!r}")
+        if count < 0:
+            raise _ParseError(f"{what}: a negative count")
+        if self.binary:
+            end = self.pos + count * size
+            if end > len(self.data):
+                raise _ParseError(f"{what}: the file ends inside its {count:,} values")
+            dtype = (">f" if kind.lower() in ("float", "double") else ">u" if kind.startswith("unsigned") else ">i")
+            values = np.frombuffer(self.data, dtype=f"{dtype}{size}", count=count, offset=self.pos)
+            self.pos = end
+            return values
+        parts = self.data[self.pos:].split(maxsplit=count)  # ASCII: the next ``count`` numbers, split in C
+        if len(parts) < count:
+            raise _ParseError(f"{what}: the file ends inside its {count:,} values")
+        self.pos = len(self.data) - (len(parts[count]) if len(parts) > count else 0)
+        try:
+            return np.array(parts[:count], dtype=np.float64)
+        except ValueError:
+            raise _ParseError(f"{what}: not a list of numbers") from None
+
+
+def _check_cells(cells: np.ndarray, n_cells: int, n_points: int, what: str) -> None:
+    """Each cell a count followed by that many point indices, ``n_cells`` of them, indices in range."""
+    if not np.all(np.isfinite(cells)) or np.any(cells != np.round(cells)):
+        raise _ParseError(f"{what}: not integers")
+    cells = cells.astype(np.int64)
+    first = int(cells[0]) if len(cells) else 0
+    if n_cells and len(cells) == n_cells * (first + 1) and first > 0 and np.all(cells[:: first + 1] == first):
+        starts = np.arange(0, len(cells), first + 1)  # every cell the same size (triangles): no walk needed
+    else:
+        starts, at = [], 0
+        while at < len(cells):  # cells of several sizes: their starts, one after the other
+            if cells[at] < 0 or at + cells[at] >= len(cells):
+                raise _ParseError(f"{what}: a cell's point count runs past the list")
+            starts.append(at)
+            at += int(cells[at]) + 1
+        starts = np.array(starts, dtype=np.int64)
+    if len(starts) != n_cells:
+        raise _ParseError(f"{what}: {len(starts):,} cells where the header says {n_cells:,}")
+    indices = np.delete(cells, starts)
+    if len(indices) and (indices.min() < 0 or indices.max() >= n_points):
+        raise _ParseError(f"{what}: a point index outside the {n_points:,} points")
+
+
+def _check_legacy_structure(path: Path) -> None:
+    """Check a legacy VTK file's points and cells against their counts before VTK reads it.
+
+    VTK's legacy reader trusts the counts: a cell whose point count was damaged makes it read past
+    its buffer and crash the process (VTK 9.7), which no Python code can catch. Everything after the
+    cells (point data, fields) is left to VTK, which checks it.
+    """
+    cur = _Legacy(path.read_bytes())
+    if not cur.line().startswith("# vtk DataFile Version"):
+        raise _ParseError("no '# vtk DataFile Version' line: not a legacy VTK file")
+    cur.line()  # the title
+    form = cur.line().upper()
+    if form not in ("ASCII", "BINARY"):
+        raise _ParseError(f"the third line says {form[:20]!r}, not ASCII or BINARY")
+    cur.binary = form == "BINARY"
+    n_points = None
+    while words := cur.line(needed=False).split():
+        key = words[0].upper()
+        if key == "DATASET":
+            continue
+        if key == "POINTS" and len(words) == 3 and words[1].isdigit():
+            n_points = int(words[1])
+            cur.numbers(3 * n_points, words[2], "POINTS")
+        elif key in _LEGACY_CELLS and len(words) == 3 and words[1].isdigit() and words[2].isdigit():
+            if n_points is None:
+                raise _ParseError(f"{key} before POINTS")
+            n, size = int(words[1]), int(words[2])
+            mark = cur.pos
+            nxt = cur.line(needed=False).split() or [""]
+            if nxt[0].upper() == "OFFSETS" and len(nxt) == 2:  # version 5.1: offsets, then connectivity
+                offsets = cur.numbers(n, nxt[1], f"{key} offsets")
+                conn_words = cur.line().split()
+                if conn_words[0].upper() != "CONNECTIVITY" or len(conn_words) != 2:
+                    raise _ParseError(f"{key}: no CONNECTIVITY after its OFFSETS")
+                connectivity = cur.numbers(size, conn_words[1], f"{key} connectivity")
+                if n and (offsets[0] != 0 or np.any(np.diff(offsets) < 0) or offsets[-1] != size):
+                    raise _ParseError(f"{key}: its offsets do not run from 0 to the connectivity's {size:,}")
+                if size and (connectivity.min() < 0 or connectivity.max() >= n_points):
+                    raise _ParseError(f"{key}: a point index outside the {n_points:,} points")
+            else:
+                cur.pos = mark
+                _check_cells(cur.numbers(size, "int", key), n, n_points, key)
+        elif key == "CELL_TYPES" and len(words) == 2 and words[1].isdigit():
+            cur.numbers(int(words[1]), "int", key)
+        elif key == "METADATA":
+            continue
+        else:  # point or cell data, fields: VTK checks those itself
+            return
+
+
 def _read_vtk_file(path: Path) -> _RawMesh:
     extension = path.suffix.lower()
     vtk = _import_vtk("reading", extension)
+    if extension == ".vtk":
+        try:
+            _check_legacy_structure(path)
+        except _ParseError as exc:
+            raise _ParseError(f"not a valid .vtk file ({exc})") from None
     to_numpy = vtk["numpy_support"].vtk_to_numpy
     if extension == ".vtp":
         reader = vtk["vtkIOXML"].vtkXMLPolyDataReader()
