@@ -1,7 +1,9 @@
 """Write the troubleshooting page's catalogue of every error and warning a user can meet.
 
 The messages are read from the source (every ``raise HortishapeError(...)``, ``MeshError``,
-``VolumeError``, ``NotFittedError`` and every ``warnings.warn(...)``), with the parts filled in at
+``VolumeError``, ``NotFittedError``, the file readers' own findings, which reach the user as
+``MeshError`` or ``VolumeError`` with the file's name in front, every ``warnings.warn(...)`` and
+the notes gathered into an extraction's or a partial fit's warning), with the parts filled in at
 run time shown as ``...``. ``python docs/messages.py`` rewrites the catalogue in
 ``docs/troubleshooting.md``; ``tests/test_docs.py`` fails when it is out of date.
 """
@@ -16,7 +18,11 @@ ROOT = Path(__file__).resolve().parents[1]
 SOURCE = ROOT / "src" / "hortishape"
 PAGE = ROOT / "docs" / "troubleshooting.md"
 START = "<!-- catalogue: written by docs/messages.py -->"
-USER_ERRORS = {"HortishapeError", "MeshError", "VolumeError", "NotFittedError"}
+USER_ERRORS = {"HortishapeError", "MeshError", "VolumeError", "NotFittedError",
+               # a reader's findings, raised as MeshError or VolumeError with the file's name in front
+               "_ParseError", "_MissingDependencyError"}
+_SHOWN_AS = {"_ParseError": "MeshError or VolumeError (a file's content)",
+             "_MissingDependencyError": "MeshError or VolumeError (an optional package)"}
 # notes gathered into one warning per product or fit: ``notes.append(...)`` in these modules
 NOTE_WARNINGS = {"hortishape.extract": "ExtractionWarning", "hortishape.partial": "FitWarning"}
 
@@ -65,7 +71,7 @@ def collect() -> dict[str, list[tuple[str, str]]]:
             text = _text(args[0]) if args else None
             if not text or text == "...":
                 continue
-            row = (kind, " ".join(text.split()))
+            row = (_SHOWN_AS.get(kind, kind), " ".join(text.split()))
             if row not in rows:
                 rows.append(row)
         if rows:
