@@ -125,37 +125,44 @@ def test_help_says_each_default_once_and_none_on_required_options():
     assert "(default: 50 1)" in build and "--out OUT" in build
 
 
-def test_every_option_the_readme_names_exists():
+def test_every_option_the_readme_and_the_docs_name_exists():
     import re
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[1]
-    readme = (root / "README.md").read_text(encoding="utf-8")
+    pages = [root / "README.md", root / "CONTRIBUTING.md",
+             *(p for p in (root / "docs").rglob("*.md") if not {"_build", "tutorials", "api"} & set(p.parts))]
     commands = _subparsers()
     options = {name: {s for a in sub._actions for s in a.option_strings} for name, sub in commands.items()}
-    # an option named alone may be a benchmark script's (the tables quote their arguments)
+    # an option named alone may be a benchmark script's (the validation pages quote their arguments)
     scripts = "".join(path.read_text(encoding="utf-8") for path in (root / "benchmarks").glob("*.py"))
-    everywhere = set().union(*options.values(), re.findall(r'add_argument\(\s*"(--[a-z][a-z-]*)"', scripts))
+    from hortishape.cli import build_parser
+
+    top = {s for a in build_parser()._actions for s in a.option_strings}  # hortishape --version
+    top |= {"--durations"}  # pytest's, named where the docs say how long the tests take
+    everywhere = set().union(top, *options.values(), re.findall(r'add_argument\(\s*"(--[a-z][a-z-]*)"', scripts))
     checked = 0
-    for line in readme.splitlines():
-        # a command line: its options must be its command's
-        m = re.match(r"^\s*(?:\.venv/bin/)?hortishape (\w+)(.*)", line)
-        if m and m.group(1) in commands:
-            for opt in re.findall(r"(?<![\w-])(--[a-z][a-z-]*)", m.group(2).split("#")[0]):
-                assert opt in options[m.group(1)], (line, opt)
+    for page in pages:
+        text = page.read_text(encoding="utf-8")
+        for line in text.splitlines():
+            # a command line: its options must be its command's
+            m = re.match(r"^\s*(?:\.venv/bin/)?hortishape (\w+)(.*)", line)
+            if m and m.group(1) in commands:
+                for opt in re.findall(r"(?<![\w-])(--[a-z][a-z-]*)", m.group(2).split("#")[0]):
+                    assert opt in options[m.group(1)], (page.name, line, opt)
+                    checked += 1
+        # without the fenced blocks, whose three backticks would put the inline spans' pairing out of step
+        for span in re.findall(r"`([^`]+)`", re.sub(r"```.*?```", "", text, flags=re.S)):
+            if "\n" in span or span.startswith(("python ", "pip ", ".venv/bin/pip", "python3 ", "dask ", "sphinx")):
+                continue  # code blocks (their hortishape lines are checked above), the benchmarks', pip's and dask's options
+            words = span.split()
+            if words and words[0] == "hortishape" and len(words) > 1 and words[1] in commands:
+                names = options[words[1]]
+            else:
+                names = everywhere
+            for opt in re.findall(r"(?<![\w-])(--[a-z][a-z-]*)", span):
+                assert opt in names, (page.name, span, opt)
                 checked += 1
-    # without the fenced blocks, whose three backticks would put the inline spans' pairing out of step
-    for span in re.findall(r"`([^`]+)`", re.sub(r"```.*?```", "", readme, flags=re.S)):
-        if "\n" in span or span.startswith(("python ", "pip ", ".venv/bin/pip", "python3 ", "dask ")):
-            continue  # code blocks (their hortishape lines are checked above), the benchmarks', pip's and dask's options
-        words = span.split()
-        if words and words[0] == "hortishape" and len(words) > 1 and words[1] in commands:
-            names = options[words[1]]
-        else:
-            names = everywhere
-        for opt in re.findall(r"(?<![\w-])(--[a-z][a-z-]*)", span):
-            assert opt in names, (span, opt)
-            checked += 1
     assert checked > 100
 
 
