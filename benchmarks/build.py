@@ -15,7 +15,7 @@ Procrustes, PCA) and prints:
 
 Run::
 
-    python benchmarks/build.py                       # 30 apples, the issue's setting
+    python benchmarks/build.py                       # 30 apples, the project's setting
     python benchmarks/build.py --n 10 --points 10000 # quicker
 """
 

@@ -29,7 +29,7 @@
    field of view (the volume grown with air, and outside the circle the scanner
    reconstructs one value 1000 below the air, DICOM's pixel padding). Same
    figures as 1.
-4. With ``--oranges N``: MRI volumes of an orange as issue 21 describes a real
+4. With ``--oranges N``: MRI volumes of an orange like the real one described to the project a real
    one (256 x 256 x 64 voxels of 0.39 x 0.39 x 1 mm, 8-bit, the fruit nearly
    filling the slices' depth, a thin peel that the slices break up), made here
    without ``hortishape.synth`` (:func:`orange_volume`), against the true
@@ -39,7 +39,7 @@
    random rotation, layers by depth below it, a core, stone or segments about its marked axis),
    against that surface: mean distance both ways, volume error, genus.
 
-Targets (issues 7 and 21): mean distance <= 0.15 voxel, volume within 0.2 % (CT)
+The project's targets: mean distance <= 0.15 voxel, volume within 0.2 % (CT)
 and 0.5 % (MRI), genus 0 and one watertight component; 512^3 in <= 20 s with
 peak memory <= 3x the volume.
 
@@ -48,7 +48,7 @@ Run::
     python benchmarks/extract.py                         # 2 of each product, and the 512^3 volume
     python benchmarks/extract.py --n 1 --size 256        # quicker
     python benchmarks/extract.py --n 0                   # only the 512^3 volumes (time and memory)
-    python benchmarks/extract.py --n 0 --size 0 --oranges 12 --seed 100   # MRI oranges as issue 21 describes
+    python benchmarks/extract.py --n 0 --size 0 --oranges 12 --seed 100   # MRI oranges like the real one described to the project
     python benchmarks/extract.py --products apple pepper zucchini --size 0 --artefacts   # scanner artefacts
     python benchmarks/extract.py --n 0 --size 0 --real-shapes       # real fruit shapes as volumes
 """
@@ -399,7 +399,7 @@ def large_mri(work: Path, size: int) -> dict:
 
 
 def orange_volume(seed: int):
-    """An MRI volume of an orange as issue 21 describes a real one, made without hortishape.synth.
+    """An MRI volume of an orange like the real one described to the project, made without hortishape.synth.
 
     256 x 256 x 64 voxels of 0.39 x 0.39 x 1 mm, uint8, the fruit nearly filling the slices'
     depth: an ellipsoid 70-82 mm across and 54-60 mm tall, tilted up to 12 degrees, its peel
@@ -465,7 +465,7 @@ def oranges(n: int, seed: int) -> list[dict]:
     from hortishape.extract import extract_surface
 
     rows = []
-    print(f"\nMRI oranges as issue 21 describes (256x256x64, 0.39 x 0.39 x 1 mm, uint8; seeds {seed}-{seed + n - 1})")
+    print(f"\nMRI oranges like the real one described to the project (256x256x64, 0.39 x 0.39 x 1 mm, uint8; seeds {seed}-{seed + n - 1})")
     print(f"{'seed':>5}{'peel mm':>8}{'peel/rind/flesh':>16}{'level':>13}{'gap':>5}{'genus':>6}"
           f"{'mean mm':>9}{'voxel':>7}{'p99 mm':>8}{'volume %':>10}{'s':>6}")
     from hortishape.errors import VolumeError
@@ -663,7 +663,7 @@ def main(argv=None) -> int:
                         help="also each volume with a scanner's artefacts (MRI: bias field, Gibbs ringing, noise; "
                              "CT: cupping, rings, noise, blur, a bed)")
     parser.add_argument("--oranges", type=int, default=0, metavar="N",
-                        help="also N MRI oranges made as issue 21 describes a real one (seeds from --seed)")
+                        help="also N MRI oranges made like the real one described to the project (seeds from --seed)")
     parser.add_argument("--real-shapes", action="store_true",
                         help="also the eight real fruit scans (tests/data/ycb) made into MRI-like and CT-like volumes")
     args = parser.parse_args(argv)

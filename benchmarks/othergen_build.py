@@ -15,7 +15,7 @@ scan's registered surface:
   build's final (second-pass) registrations and in the first pass;
 * upside down: the carried axis more than 90 degrees from the scan's;
 * "right": both poles within 12 mm and the axis within 25 degrees (the
-  correspondence issue's real-scan target);
+  project's real-scan target for correspondence);
 * what the orientation check re-registered and kept, and which scans the
   summary names as uncertain.
 

@@ -20,7 +20,7 @@ nearest each mark) and compared with B's marks, turned with B:
 
 Each scan onto a turned copy of itself is the control: the pose alone is
 recovered there (all eight marked scans, the banana and the strawberry
-too). The issue's targets: poles within 12 mm and the axis within 25
+too). The project's targets: poles within 12 mm and the axis within 25
 degrees for every pair.
 
 Run::

@@ -159,7 +159,7 @@ def _measure(vertices, faces, ref_global, template, canon, lm_loc, tgt):
     # Procrustes removes it.
     aligned = apply_transform(rigid_fit(vertices, truth), vertices)
     # the same after the best turn about the target's true stalk axis only:
-    # what a straight zucchini's surface cannot tell (the measure)
+    # what a straight zucchini's surface cannot tell (the project's measure)
     turned, turn = _best_turn(vertices, truth, tgt["pose"][:3, 2])
     return dict(
         geom=float(geom.mean()),
