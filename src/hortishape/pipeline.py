@@ -690,7 +690,6 @@ def choose_reference(checks: Sequence[ScanCheck]) -> str:
     [69, 68, 73]
     >>> Path(choose_reference(checks)).name
     'apple_000.ply'
-
     """
     ok = [c for c in checks if c.ok]
     if not ok:
