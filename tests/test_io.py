@@ -1189,7 +1189,7 @@ def test_binary_ply_written_in_blocks_reads_back_whole(tmp_path, monkeypatch):
 
 @pytest.mark.parametrize("binary", [True, False])
 def test_a_legacy_vtk_file_with_a_damaged_cell_count_is_refused_not_crashed_on(tmp_path, binary):
-    # VTK's legacy reader trusts the counts and reads past its buffer (a crash, VTK 9.7): the cells are
+    # VTK's legacy reader trusts the counts and reads past its buffer (a crash, VTK 9.4 and 9.7): the cells are
     # checked first, in a child process here so that a crash fails this test instead of the run
     import subprocess
     import sys

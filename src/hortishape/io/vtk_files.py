@@ -144,7 +144,8 @@ def _check_legacy_structure(path: Path) -> None:
     """Check a legacy VTK file's points and cells against their counts before VTK reads it.
 
     VTK's legacy reader trusts the counts: a cell whose point count was damaged makes it read past
-    its buffer and crash the process (VTK 9.7), which no Python code can catch. Everything after the
+    its buffer, which can crash the process (seen with VTK 9.4 and 9.7), and no Python code can
+    catch that. Everything after the
     cells (point data, fields) is left to VTK, which checks it.
     """
     cur = _Legacy(path.read_bytes())
