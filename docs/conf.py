@@ -73,7 +73,7 @@ sphinx_gallery_conf = {
 _FORMER_HOMES = {"hortishape.register": "hortishape.registration",
                  "hortishape.correspond": "hortishape.registration.correspondences"}
 API_MODULES = [
-    "hortishape", "hortishape.io", "hortishape.synth", "hortishape.extract", "hortishape.registration",
+    "hortishape", "hortishape.mesh", "hortishape.io", "hortishape.synth", "hortishape.extract", "hortishape.registration",
     "hortishape.registration.correspondences", "hortishape.align", "hortishape.procrustes",
     "hortishape.model", "hortishape.pipeline", "hortishape.metrics", "hortishape.evaluate",
     "hortishape.report", "hortishape.partial", "hortishape.cad", "hortishape.view", "hortishape.statismo",

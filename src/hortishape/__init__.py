@@ -13,6 +13,8 @@ when first used.
 from ._version import __version__
 from .errors import (
     ConvergenceWarning,
+    ExtractionWarning,
+    FitWarning,
     HortishapeError,
     MeshError,
     NotFittedError,
@@ -21,6 +23,8 @@ from .errors import (
 
 __all__ = [
     "ConvergenceWarning",
+    "ExtractionWarning",
+    "FitWarning",
     "PartialFitter",
     "fit_partial",
     "HortishapeError",

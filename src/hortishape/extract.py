@@ -113,6 +113,7 @@ __all__ = [
     "ExtractResult",
     "Extraction",
     "IntensityLevels",
+    "collect_volumes",
     "decimate",
     "extract_file",
     "extract_files",
@@ -2751,6 +2752,18 @@ def collect_volumes(paths, *, exclude=()) -> tuple[list, list[tuple[str, str]]]:
     volumes : list of Path or VolumeSource
     passed_over : list of (str, str)
         Files and folders in the folders that are not volumes, with why.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> from hortishape.io import Volume, write_volume
+    >>> folder = Path(tempfile.mkdtemp())
+    >>> _ = write_volume(folder / "apple.mha", Volume(np.zeros((4, 4, 4)), spacing=0.5))
+    >>> _ = (folder / "notes.txt").write_text("120 kV")
+    >>> volumes, passed_over = collect_volumes([folder])
+    >>> [v.name for v in volumes], [Path(p).name for p, why in passed_over]
+    (['apple'], ['notes.txt'])
     """
     volumes: list = []
     passed: list[tuple[str, str]] = []

@@ -19,6 +19,9 @@ if TYPE_CHECKING:  # pragma: no cover
     import trimesh
 
 
+__all__ = ["Mesh", "check_mesh", "unique_edges"]
+
+
 def check_mesh(vertices, faces, *, name: str = "mesh") -> tuple[np.ndarray, np.ndarray]:
     """Validate and convert mesh arrays.
 

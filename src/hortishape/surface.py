@@ -37,6 +37,7 @@ __all__ = [
     "mean_edge_length",
     "remesh",
     "rim_edges",
+    "signed_volume",
     "vertex_areas",
     "vertex_normals",
 ]
@@ -183,6 +184,14 @@ def signed_volume(vertices, faces) -> float:
 
     Summed over blocks of faces, so that a million-face surface needs a few
     megabytes beside itself, not the corners of every face at once.
+
+    Examples
+    --------
+    >>> import trimesh
+    >>> ball = trimesh.creation.icosphere(subdivisions=5, radius=40.0)
+    >>> ml = signed_volume(ball.vertices, ball.faces) / 1000.0   # mm^3 to mL
+    >>> round(ml, 1), round(4.0 / 3.0 * np.pi * 40.0**3 / 1000.0, 1)
+    (267.9, 268.1)
     """
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces)
