@@ -156,7 +156,7 @@ def run_demo(
 
     >>> result = run_demo("hortishape-demo", n=30)   # doctest: +SKIP
     >>> result.report                                 # doctest: +SKIP
-    PosixPath('hortishape-demo/evaluation/report.html')
+    PosixPath('hortishape-demo/model/evaluation/report.html')
     """
     from .evaluate import evaluate_model
     from .model import ShapeModel
