@@ -69,7 +69,7 @@ def collect() -> dict[str, list[tuple[str, str]]]:
             else:
                 continue
             text = _text(args[0]) if args else None
-            if not text or text == "...":
+            if not text or sum(c.isalpha() for c in text) < 3:  # a message passed on as it came ("...: ...")
                 continue
             row = (_SHOWN_AS.get(kind, kind), " ".join(text.split()))
             if row not in rows:
