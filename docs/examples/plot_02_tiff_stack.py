@@ -46,8 +46,8 @@ except VolumeError as error:
     print(type(error).__name__, ":", error)
 
 # %%
-# ``--spacing SX SY SZ`` (mm) gives it, for every volume of the build (and overrides what the
-# files say), so the four pears that still have their log go to a folder of their own:
+# ``--spacing SX SY SZ`` (mm) gives it. It sets the size of every volume a command reads (and
+# overrides what their files say), so the pear without its log is extracted on its own:
 (work / "scans" / "pear_5").rename(work / "pear_5_no_log")
 hortishape(["extract", str(work / "pear_5_no_log"), "--out", str(work / "surface_5"),
             "--spacing", *[f"{s:g}" for s in pear.volume.spacing]])
