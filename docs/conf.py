@@ -11,13 +11,11 @@ from __future__ import annotations
 import importlib
 import inspect
 import os
-import sys
 from pathlib import Path
 
 import hortishape
 
 DOCS = Path(__file__).resolve().parent
-sys.path.insert(0, str(DOCS / "_ext"))
 
 project = "hortishape"
 author = "hortishape developers"
@@ -38,7 +36,6 @@ exclude_patterns = ["_build", "examples/*.md", "tutorials/*.ipynb", "tutorials/*
 myst_enable_extensions = ["colon_fence", "deflist", "substitution"]
 myst_substitutions = {"release": release}
 myst_heading_anchors = 3
-suppress_warnings = ["myst.header"]
 
 html_theme = "furo"
 html_title = f"hortishape {release}"
