@@ -2640,8 +2640,9 @@ def split_products(volume, *, level: float | None = None, name: str = "volume") 
     # the others' voxels and their rims (below the level, beside them) go to the background; a tray stays,
     # for extract_surface to drop as a support (the surface meets it where the product stands on it)
     masked_ids = np.array(keep + [i for i in range(1, n + 1) if edge[i]])
-    masked = np.isin(grown, masked_ids)
-    rim = ndimage.binary_dilation(masked, iterations=2) & ~solid
+    if factor == 1:  # on a coarse grid each box finds its boundaries again at full resolution instead
+        masked = np.isin(grown, masked_ids)
+        rim = ndimage.binary_dilation(masked, iterations=2) & ~solid
     background = levels.background
     products = []
     for i in keep:
