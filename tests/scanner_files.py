@@ -8,7 +8,6 @@ from pathlib import Path
 
 import numpy as np
 
-CT_IMAGE_STORAGE = "1.2.840.10008.5.1.4.1.1.2"
 ROOT = "1.2.826.0.1.3680043.8.498."  # a UID prefix for examples
 
 
@@ -34,48 +33,21 @@ def write_dicom_series(folder: Path, data: np.ndarray, *, spacing=(0.5, 0.5, 0.8
     missing slice); ``tilt_mm`` shifts each slice along y by that much per slice (a gantry tilt);
     ``thickness`` is the SliceThickness written (default: the step), which readers must not trust.
     """
-    import pydicom
-    from pydicom.dataset import FileDataset, FileMetaDataset
-    from pydicom.uid import ExplicitVRLittleEndian
+    from hortishape.io.dicom import _write_ct_slice
 
     folder.mkdir(parents=True, exist_ok=True)
     stored = np.round((np.asarray(data, np.float64) - intercept) / slope)
-    signed = stored.min() < 0
-    stored = stored.astype(np.int16 if signed else np.uint16)
+    stored = stored.astype(np.int16 if stored.min() < 0 else np.uint16)
     paths = []
     for k in range(stored.shape[2]):
         if k in skip:
             continue
-        meta = FileMetaDataset()
-        meta.MediaStorageSOPClassUID = CT_IMAGE_STORAGE
-        meta.MediaStorageSOPInstanceUID = f"{series_uid}.{k + 1}"
-        meta.TransferSyntaxUID = ExplicitVRLittleEndian
-        path = folder / names.format(k)
-        ds = FileDataset(str(path), {}, file_meta=meta, preamble=b"\0" * 128)
-        ds.SOPClassUID = CT_IMAGE_STORAGE
-        ds.SOPInstanceUID = f"{series_uid}.{k + 1}"
-        ds.StudyInstanceUID = study_uid
-        ds.SeriesInstanceUID = series_uid
-        ds.SeriesNumber = number
-        ds.InstanceNumber = k + 1
-        ds.Modality = "CT"
-        if description:
-            ds.SeriesDescription = description
-        ds.ImageOrientationPatient = [1, 0, 0, 0, 1, 0]
-        ds.ImagePositionPatient = [float(origin[0]), float(origin[1]) + k * tilt_mm, float(origin[2]) + k * spacing[2]]
-        ds.PixelSpacing = [float(spacing[1]), float(spacing[0])]  # row spacing (y), column spacing (x)
-        ds.SliceThickness = float(spacing[2] if thickness is None else thickness)
-        ds.RescaleSlope = slope
-        ds.RescaleIntercept = intercept
-        ds.Rows, ds.Columns = stored.shape[1], stored.shape[0]
-        ds.SamplesPerPixel = 1
-        ds.PhotometricInterpretation = "MONOCHROME2"
-        ds.BitsAllocated = ds.BitsStored = 16
-        ds.HighBit = 15
-        ds.PixelRepresentation = 1 if signed else 0
-        ds.PixelData = np.ascontiguousarray(stored[:, :, k].T).tobytes()  # rows are y
-        pydicom.dcmwrite(path, ds, enforce_file_format=True)
-        paths.append(path)
+        position = (origin[0], origin[1] + k * tilt_mm, origin[2] + k * spacing[2])
+        paths.append(_write_ct_slice(
+            folder / names.format(k), stored[:, :, k], study_uid=study_uid, series_uid=series_uid, instance=k + 1,
+            series_number=number, description=description, orientation=(1, 0, 0, 0, 1, 0), position=position,
+            pixel_spacing=(spacing[1], spacing[0]), thickness=spacing[2] if thickness is None else thickness,
+            slope=slope, intercept=intercept))
     return paths
 
 

@@ -335,6 +335,50 @@ def _read_series(pydicom, files: list[Path], name: Path) -> tuple[_RawVolume, di
 _CT_IMAGE_STORAGE = "1.2.840.10008.5.1.4.1.1.2"
 
 
+def _write_ct_slice(path: Path, pixels: np.ndarray, *, study_uid: str, series_uid: str, instance: int,
+                    series_number: int, description: str, orientation, position, pixel_spacing,
+                    thickness: float, slope: float, intercept: float) -> Path:
+    """One slice of a CT series as a scanner writes it: ``pixels`` indexed [x, y], int16 or uint16.
+
+    ``pixel_spacing`` is DICOM's (rows, then columns: y, then x); ``orientation`` the six direction
+    cosines of a row and a column.
+    """
+    import pydicom
+    from pydicom.dataset import FileDataset, FileMetaDataset
+    from pydicom.uid import ExplicitVRLittleEndian
+
+    uid = f"{series_uid}.{instance}"[:64]
+    meta = FileMetaDataset()
+    meta.MediaStorageSOPClassUID = _CT_IMAGE_STORAGE
+    meta.MediaStorageSOPInstanceUID = uid
+    meta.TransferSyntaxUID = ExplicitVRLittleEndian
+    ds = FileDataset(str(path), {}, file_meta=meta, preamble=b"\0" * 128)
+    ds.SOPClassUID = _CT_IMAGE_STORAGE
+    ds.SOPInstanceUID = uid
+    ds.StudyInstanceUID = study_uid
+    ds.SeriesInstanceUID = series_uid
+    ds.SeriesNumber = int(series_number)
+    ds.InstanceNumber = int(instance)
+    ds.Modality = "CT"
+    if description:
+        ds.SeriesDescription = description
+    ds.ImageOrientationPatient = [float(c) for c in orientation]
+    ds.ImagePositionPatient = [float(c) for c in position]
+    ds.PixelSpacing = [float(c) for c in pixel_spacing]
+    ds.SliceThickness = float(thickness)
+    ds.RescaleSlope = f"{slope:.10g}"
+    ds.RescaleIntercept = f"{intercept:.10g}"
+    ds.Rows, ds.Columns = pixels.shape[1], pixels.shape[0]
+    ds.SamplesPerPixel = 1
+    ds.PhotometricInterpretation = "MONOCHROME2"
+    ds.BitsAllocated = ds.BitsStored = 16
+    ds.HighBit = 15
+    ds.PixelRepresentation = 1 if pixels.dtype == np.int16 else 0
+    ds.PixelData = np.ascontiguousarray(pixels.T).tobytes()  # a slice's rows run along y
+    pydicom.dcmwrite(path, ds, enforce_file_format=True)
+    return path
+
+
 def write_dicom_series(folder, volume, *, description: str = "", series_number: int = 1) -> list[Path]:
     """Write a volume as a CT scanner exports it: one extensionless DICOM file per slice.
 
@@ -374,9 +418,8 @@ def write_dicom_series(folder, volume, *, description: str = "", series_number: 
     import shutil
     import tempfile
 
-    pydicom = _pydicom(Path(folder))
-    from pydicom.dataset import FileDataset, FileMetaDataset
-    from pydicom.uid import ExplicitVRLittleEndian, generate_uid
+    _pydicom(Path(folder))
+    from pydicom.uid import generate_uid
 
     folder = Path(folder)
     if folder.exists():
@@ -390,7 +433,6 @@ def write_dicom_series(folder, volume, *, description: str = "", series_number: 
         slope = (hi - lo) / 65535.0 or 1.0
         intercept = lo
         stored = np.round((data - intercept) / slope).astype(np.uint16)
-    signed = stored.dtype == np.int16
     # the same volume and name give the same identifiers (reproducible files)
     seed = [folder.name, description, str(data.shape), str(volume.spacing.tolist())]
     study_uid = generate_uid(entropy_srcs=["study", *seed])
@@ -399,36 +441,12 @@ def write_dicom_series(folder, volume, *, description: str = "", series_number: 
     tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", dir=folder.parent))
     try:
         for k in range(stored.shape[2]):
-            uid = f"{series_uid}.{k + 1}"[:64]
-            meta = FileMetaDataset()
-            meta.MediaStorageSOPClassUID = _CT_IMAGE_STORAGE
-            meta.MediaStorageSOPInstanceUID = uid
-            meta.TransferSyntaxUID = ExplicitVRLittleEndian
-            ds = FileDataset(str(tmp / f"IM{k:04d}"), {}, file_meta=meta, preamble=b"\0" * 128)
-            ds.SOPClassUID = _CT_IMAGE_STORAGE
-            ds.SOPInstanceUID = uid
-            ds.StudyInstanceUID = study_uid
-            ds.SeriesInstanceUID = series_uid
-            ds.SeriesNumber = int(series_number)
-            ds.InstanceNumber = k + 1
-            ds.Modality = "CT"
-            if description:
-                ds.SeriesDescription = description
-            ds.ImageOrientationPatient = [float(c) for c in (*direction[:, 0], *direction[:, 1])]
-            position = volume.origin + direction[:, 2] * (k * volume.spacing[2])
-            ds.ImagePositionPatient = [float(c) for c in position]
-            ds.PixelSpacing = [float(volume.spacing[1]), float(volume.spacing[0])]  # rows (y), then columns (x)
-            ds.SliceThickness = float(volume.spacing[2])
-            ds.RescaleSlope = f"{slope:.10g}"
-            ds.RescaleIntercept = f"{intercept:.10g}"
-            ds.Rows, ds.Columns = stored.shape[1], stored.shape[0]
-            ds.SamplesPerPixel = 1
-            ds.PhotometricInterpretation = "MONOCHROME2"
-            ds.BitsAllocated = ds.BitsStored = 16
-            ds.HighBit = 15
-            ds.PixelRepresentation = 1 if signed else 0
-            ds.PixelData = np.ascontiguousarray(stored[:, :, k].T).tobytes()  # a slice's rows run along y
-            pydicom.dcmwrite(tmp / f"IM{k:04d}", ds, enforce_file_format=True)
+            _write_ct_slice(tmp / f"IM{k:04d}", stored[:, :, k], study_uid=study_uid, series_uid=series_uid,
+                            instance=k + 1, series_number=series_number, description=description,
+                            orientation=(*direction[:, 0], *direction[:, 1]),
+                            position=volume.origin + direction[:, 2] * (k * volume.spacing[2]),
+                            pixel_spacing=(volume.spacing[1], volume.spacing[0]), thickness=volume.spacing[2],
+                            slope=slope, intercept=intercept)
         tmp.rename(folder)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
