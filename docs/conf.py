@@ -115,20 +115,16 @@ def _write_api_pages() -> None:
 
 def _write_cli_page() -> None:
     """The command line's reference: each command's ``--help``, as the parser prints it."""
-    import argparse
-
-    from hortishape.cli import build_parser
+    from hortishape.cli import _command_parsers, build_parser
 
     os.environ["COLUMNS"] = "100"  # argparse wraps at the terminal's width
     parser = build_parser()
-    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
     lines = ["# Command line", "",
              "Written from the command line's own parser when this site is built: the text of "
              "`hortishape --help` and of `hortishape COMMAND --help`.", "",
              "```text", parser.format_help().rstrip(), "```", ""]
-    helps = {a.dest: a.help for a in sub._choices_actions}
-    for name, command in sub.choices.items():
-        lines += [f"## `hortishape {name}`", "", f"{helps.get(name, '')}", "",
+    for name, (help_line, command) in _command_parsers(parser).items():
+        lines += [f"## `hortishape {name}`", "", help_line or "", "",
                   "```text", command.format_help().rstrip(), "```", ""]
     (DOCS / "reference" / "cli.md").write_text("\n".join(lines), encoding="utf-8")
 

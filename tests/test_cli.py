@@ -107,8 +107,9 @@ def test_register_command(tmp_path, capsys):
 
 
 def _subparsers():
-    parser = build_parser()
-    return parser._subparsers._group_actions[0].choices
+    from hortishape.cli import _command_parsers
+
+    return {name: command for name, (_, command) in _command_parsers(build_parser()).items()}
 
 
 def test_help_says_each_default_once_and_none_on_required_options():

@@ -87,14 +87,12 @@ def test_every_public_name_has_a_docstring():
 def test_every_command_line_option_has_help():
     import argparse
 
-    from hortishape.cli import build_parser
+    from hortishape.cli import _command_parsers, build_parser
 
-    parser = build_parser()
-    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-    commands = {a.dest for a in sub._choices_actions if a.help}
-    assert commands == set(sub.choices), "every command has a one-line help"
+    commands = _command_parsers(build_parser())
+    assert all(help_line for help_line, _ in commands.values()), "every command has a one-line help"
     missing = [f"{name} {action.option_strings or action.dest}"
-               for name, command in sub.choices.items() for action in command._actions
+               for name, (_, command) in commands.items() for action in command._actions
                if not action.help and not isinstance(action, argparse._HelpAction)]
     assert not missing, f"options without help: {missing}"
 

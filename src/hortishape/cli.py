@@ -1165,6 +1165,14 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _command_parsers(parser: argparse.ArgumentParser) -> dict[str, tuple[str | None, argparse.ArgumentParser]]:
+    """Each command of ``build_parser()``: its one-line help and its own parser (for the docs' reference
+    and the tests, which read every command's options)."""
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    helps = {a.dest: a.help for a in sub._choices_actions}
+    return {name: (helps.get(name), command) for name, command in sub.choices.items()}
+
+
 _COMMANDS = [_add_demo, _add_synth, _add_extract, _add_register, _add_build, _add_update, _add_sample, _add_modes, _add_fit, _add_cad,
              _add_evaluate, _add_view, _add_convert]
 
