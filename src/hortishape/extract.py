@@ -1126,12 +1126,15 @@ def _border_blocks(lab: np.ndarray, n: int) -> np.ndarray:
     return counts
 
 
+def _repeat_crop(block: np.ndarray, start, shape, factor: int) -> np.ndarray:
+    """``block`` on a grid ``factor`` times finer, the part of ``shape`` from ``start`` (fine voxels)."""
+    up = np.repeat(np.repeat(np.repeat(block, factor, axis=0), factor, axis=1), factor, axis=2)
+    return up[start[0]:start[0] + shape[0], start[1]:start[1] + shape[1], start[2]:start[2] + shape[2]]
+
+
 def _upsample(coarse: np.ndarray, z0: int, z1: int, shape_yx, factor: int) -> np.ndarray:
     c = factor
-    block = coarse[z0 // c : -(-z1 // c)]
-    up = np.repeat(np.repeat(np.repeat(block, c, axis=0), c, axis=1), c, axis=2)
-    start = z0 - (z0 // c) * c
-    return up[start : start + (z1 - z0), : shape_yx[0], : shape_yx[1]]
+    return _repeat_crop(coarse[z0 // c : -(-z1 // c)], (z0 - (z0 // c) * c, 0, 0), (z1 - z0, *shape_yx), c)
 
 
 # --------------------------------------------------------------------------
@@ -2501,11 +2504,7 @@ def _others_fine(crop: np.ndarray, coarse: np.ndarray, offset: np.ndarray, i: in
     from scipy import ndimage
     from skimage.segmentation import watershed
 
-    up = coarse
-    for axis in range(3):
-        up = np.repeat(up, factor, axis=axis)
-    up = up[offset[0]:offset[0] + crop.shape[0], offset[1]:offset[1] + crop.shape[1],
-            offset[2]:offset[2] + crop.shape[2]]
+    up = _repeat_crop(coarse, offset, crop.shape, factor)
     size = 2 * factor + 1
     seeds = np.where(ndimage.maximum_filter(up, size=size) == ndimage.minimum_filter(up, size=size), up, 0)
     solid = ndimage.binary_fill_holes(crop > level)
